@@ -1,0 +1,188 @@
+//! Command-line flags: plain clap data (syntax only), resolved into library types in
+//! `resolve.rs`.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+
+/// pofvr: volume rendering that knows, before it renders, which bricks can't be seen.
+#[derive(Parser, Debug)]
+#[command(name = "pofvr", version, about, long_about = None, propagate_version = true)]
+pub(crate) struct Cli {
+    #[command(subcommand)]
+    pub(crate) command: Command,
+    /// Worker threads (0 = one per core).
+    /// > default: 0
+    #[arg(long, global = true, default_value_t = 0)]
+    pub(crate) threads: usize,
+    /// Hide progress bars (they are hidden anyway when stderr is not a terminal).
+    #[arg(long, global = true)]
+    pub(crate) quiet: bool,
+}
+
+#[derive(Subcommand, Debug)]
+pub(crate) enum Command {
+    /// Describe a volume: dims, type, spacing, value range, histogram, bricks.
+    Info(InfoArgs),
+    /// Render one frame of a volume to PNG (and optionally raw float RGBA).
+    Render(RenderArgs),
+    /// Render the built-in head phantom to demo.png; needs no input.
+    Demo(DemoArgs),
+    /// Measure performance and write a report.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+/// Where the volume comes from.
+#[derive(Args, Debug, Clone)]
+pub(crate) struct VolumeArgs {
+    /// Volume file (.nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or raw with --dims/--dtype),
+    /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8) or `phantom:ml:N`
+    /// (Marschner–Lobb, f32).
+    pub(crate) volume: String,
+    /// Raw files: voxel counts X,Y,Z.
+    #[arg(long, value_name = "X,Y,Z")]
+    pub(crate) dims: Option<String>,
+    /// Raw files: stored type, one of u8, u16, i16, f32.
+    #[arg(long)]
+    pub(crate) dtype: Option<String>,
+    /// Raw files: byte order, little or big.
+    /// > default: little
+    #[arg(long, default_value = "little")]
+    pub(crate) endian: String,
+    /// Raw files: voxel spacing in world units.
+    /// > default: 1,1,1
+    #[arg(long, value_name = "SX,SY,SZ")]
+    pub(crate) spacing: Option<String>,
+    /// Raw files: bytes to skip before the voxels.
+    /// > default: 0
+    #[arg(long, default_value_t = 0)]
+    pub(crate) header_bytes: u64,
+    /// Brick edge in voxels.
+    /// > default: 16
+    #[arg(long, default_value_t = 16)]
+    pub(crate) brick: usize,
+}
+
+/// The transfer-function family.
+#[derive(Args, Debug, Clone)]
+pub(crate) struct TfArgs {
+    /// Transfer-function family JSON (bases, weights, color). Phantoms have a built-in one.
+    #[arg(long, value_name = "TF.json")]
+    pub(crate) tf: Option<PathBuf>,
+    /// Basis weights k1,k2,…, overriding the file's "weights".
+    #[arg(long, value_name = "K1,K2,…")]
+    pub(crate) weights: Option<String>,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct InfoArgs {
+    #[command(flatten)]
+    pub(crate) volume: VolumeArgs,
+    #[command(flatten)]
+    pub(crate) tf: TfArgs,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub(crate) json: bool,
+}
+
+/// View and image.
+#[derive(Args, Debug, Clone)]
+pub(crate) struct ViewArgs {
+    /// View direction around the volume centre: azimuth about +y and elevation, degrees.
+    /// > default: 30,20
+    #[arg(long, value_name = "AZ,EL", default_value = "30,20", allow_hyphen_values = true)]
+    pub(crate) view: String,
+    /// Camera JSON (as written by --camera-out); overrides --view, --size, --projection.
+    #[arg(long, value_name = "camera.json")]
+    pub(crate) camera: Option<PathBuf>,
+    /// Write the exact camera used to this JSON file.
+    #[arg(long, value_name = "camera.json")]
+    pub(crate) camera_out: Option<PathBuf>,
+    /// Image size.
+    /// > default: 512x512
+    #[arg(long, value_name = "WxH", default_value = "512x512")]
+    pub(crate) size: String,
+    /// orthographic (the paper's case) or perspective.
+    /// > default: orthographic
+    #[arg(long, default_value = "orthographic")]
+    pub(crate) projection: String,
+    /// Sample distance in units of the smallest voxel spacing.
+    /// > default: 1
+    #[arg(long, default_value_t = 1.0)]
+    pub(crate) step: f32,
+    /// Early ray termination opacity (1 disables it).
+    /// > default: 0.99
+    #[arg(long, default_value_t = 0.99)]
+    pub(crate) ert: f32,
+    /// Gradient (Lambertian, headlight) shading.
+    #[arg(long)]
+    pub(crate) shade: bool,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct RenderArgs {
+    #[command(flatten)]
+    pub(crate) volume: VolumeArgs,
+    #[command(flatten)]
+    pub(crate) tf: TfArgs,
+    #[command(flatten)]
+    pub(crate) view: ViewArgs,
+    /// Output PNG (8-bit RGBA, straight alpha).
+    /// > default: out.png
+    #[arg(long, short, default_value = "out.png")]
+    pub(crate) out: PathBuf,
+    /// Also write the float image: little-endian f32, W×H×4, premultiplied RGBA.
+    #[arg(long, value_name = "FILE")]
+    pub(crate) out_raw: Option<PathBuf>,
+    /// Write frame statistics as JSON.
+    #[arg(long, value_name = "FILE")]
+    pub(crate) stats: Option<PathBuf>,
+    /// Compare with a raw float image of the same size and print RMSE and max difference.
+    #[arg(long, value_name = "FILE")]
+    pub(crate) reference: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct DemoArgs {
+    /// Phantom edge length in voxels.
+    /// > default: 128
+    #[arg(long, default_value_t = 128)]
+    pub(crate) n: usize,
+    /// Output PNG.
+    /// > default: demo.png
+    #[arg(long, short, default_value = "demo.png")]
+    pub(crate) out: PathBuf,
+}
+
+#[derive(Subcommand, Debug)]
+pub(crate) enum BenchCommand {
+    /// Samples per second per core of the ray caster, with and without early termination,
+    /// axis-aligned and oblique, on the phantom and on given volumes.
+    Render(BenchRenderArgs),
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct BenchRenderArgs {
+    /// Extra volumes to measure (files; each needs --tf-for or uses an automatic ramp).
+    pub(crate) volumes: Vec<String>,
+    /// Transfer-function family for the extra volumes.
+    #[arg(long, value_name = "TF.json")]
+    pub(crate) tf: Option<PathBuf>,
+    /// Phantom size.
+    /// > default: 256
+    #[arg(long, default_value_t = 256)]
+    pub(crate) phantom: usize,
+    /// Image size.
+    /// > default: 512x512
+    #[arg(long, default_value = "512x512")]
+    pub(crate) size: String,
+    /// Repetitions per case (the median is reported).
+    /// > default: 3
+    #[arg(long, default_value_t = 3)]
+    pub(crate) reps: usize,
+    /// Report file (JSON); a table is printed too.
+    /// > default: bench-render.json
+    #[arg(long, default_value = "bench-render.json")]
+    pub(crate) out: PathBuf,
+}

@@ -1,0 +1,4 @@
+pub(crate) mod bench;
+pub(crate) mod demo;
+pub(crate) mod info;
+pub(crate) mod render;

@@ -1,0 +1,29 @@
+//! The `pofvr` binary: a thin layer over the `pofvr` library.
+
+mod args;
+mod cmd;
+mod progress;
+mod resolve;
+
+use clap::Parser;
+
+fn main() {
+    let cli = args::Cli::parse();
+    if let Err(e) = run(cli) {
+        eprintln!("pofvr: error: {e:#}");
+        std::process::exit(2);
+    }
+}
+
+fn run(cli: args::Cli) -> anyhow::Result<()> {
+    if cli.threads > 0 {
+        rayon::ThreadPoolBuilder::new().num_threads(cli.threads).build_global()?;
+    }
+    let ui = progress::Ui::new(cli.quiet);
+    match cli.command {
+        args::Command::Info(a) => cmd::info::run(&a, &ui),
+        args::Command::Render(a) => cmd::render::run(&a, &ui),
+        args::Command::Demo(a) => cmd::demo::run(&a, &ui),
+        args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
+    }
+}

@@ -1,0 +1,53 @@
+use super::*;
+use crate::volume::phantom::Phantom;
+use crate::volume::{VoxelData, Voxels};
+
+#[test]
+fn bricks_tile_the_sampled_box() {
+    let vol = Phantom::SheppLogan.generate(40);
+    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
+    assert_eq!(grid.counts(), [3, 3, 3]); // (40-1)/16 rounded up
+    let last = grid.id([2, 2, 2]);
+    assert_eq!(grid.index_box(last).hi, [39.0; 3]);
+    assert_eq!(grid.index_box(grid.id([1, 0, 0])).lo[0], 16.0);
+    assert_eq!(grid.index_box(grid.id([0, 0, 0])).hi[0], 16.0); // shared face
+}
+
+#[test]
+fn brick_range_matches_brute_force_over_its_ghosted_box() {
+    let vol = Phantom::SheppLogan.generate(37);
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    for id in grid.ids() {
+        let (lo, hi) = grid.voxel_bounds(id);
+        let (mut mn, mut mx) = (f32::MAX, f32::MIN);
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    mn = mn.min(vol.value(x, y, z));
+                    mx = mx.max(vol.value(x, y, z));
+                }
+            }
+        }
+        assert_eq!(grid.range(id), ValueRange { min: mn, max: mx }, "brick {id:?}");
+    }
+}
+
+#[test]
+fn single_voxel_thick_volume_has_one_degenerate_layer() {
+    let vol = crate::volume::Volume::new(
+        [5, 5, 1],
+        [1.0; 3],
+        VoxelData::U8(Voxels::owned(vec![7; 25])),
+        "flat",
+    )
+    .unwrap();
+    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
+    assert_eq!(grid.counts(), [1, 1, 1]);
+    assert_eq!(grid.range(BrickId(0)), ValueRange { min: 7.0, max: 7.0 });
+}
+
+#[test]
+fn bad_brick_size_is_rejected() {
+    let vol = Phantom::SheppLogan.generate(8);
+    assert!(BrickGrid::from_volume(&vol, 1).is_err());
+}

@@ -1,0 +1,23 @@
+//! # pofvr: volume rendering with Plenoptic Opacity Function culling
+//!
+//! ## Brief overview
+//!
+//! The pipeline, in order:
+//!
+//! 1. [`volume::Volume`]: the scalar grid in its stored type, memory-mapped from raw,
+//!    NRRD, MetaImage or NIfTI files, or generated ([`volume::phantom::Phantom`]).
+//! 2. [`brick::BrickGrid`]: the volume cut into bricks (16³ by default) with their value
+//!    ranges; empty bricks for a transfer function are known before rendering.
+//! 3. [`render::TransferFunction`]: a family of basis opacity functions with weights,
+//!    tabulated as [`render::SampledTf`].
+//! 4. [`render::Camera`] and [`render::RayCaster`]: front-to-back emission–absorption
+//!    ray casting on one global sample lattice, so bricks render seamlessly.
+//! 5. [`frame`]: the one place where stages are chained into a frame.
+
+#![warn(missing_docs)]
+
+pub mod brick;
+pub mod frame;
+pub mod io;
+pub mod render;
+pub mod volume;

@@ -1,0 +1,50 @@
+//! Built-in transfer-function families for the generated phantoms.
+
+use super::TransferFunction;
+
+/// Skin (soft tissue) + bone for the Shepp–Logan phantom's u8 intensities (brain ≈ 50,
+/// features 75–100, shell 250).
+pub const SHEPP_LOGAN_JSON: &str = r#"{
+  "bases": [
+    {"name": "skin", "opacity": [[20, 0.0], [45, 0.04], [110, 0.04], [140, 0.0]]},
+    {"name": "bone", "opacity": [[150, 0.0], [240, 0.6], [255, 0.6]]}
+  ],
+  "weights": [1.0, 1.0],
+  "color": [[0, 0.0, 0.0, 0.0], [40, 0.85, 0.55, 0.45], [100, 0.95, 0.75, 0.6], [200, 1.0, 0.97, 0.9], [255, 1.0, 1.0, 1.0]]
+}"#;
+
+/// Two iso-bands for the Marschner–Lobb signal in [0, 1].
+pub const MARSCHNER_LOBB_JSON: &str = r#"{
+  "bases": [
+    {"name": "low", "opacity": [[0.3, 0.0], [0.4, 0.3], [0.5, 0.0]]},
+    {"name": "high", "opacity": [[0.55, 0.0], [0.7, 0.5], [1.0, 0.5]]}
+  ],
+  "weights": [1.0, 1.0],
+  "color": [[0.0, 0.2, 0.4, 1.0], [0.5, 0.9, 0.9, 0.9], [1.0, 1.0, 0.5, 0.2]]
+}"#;
+
+/// The built-in family for a phantom.
+#[must_use]
+pub fn for_phantom(p: crate::volume::phantom::Phantom) -> TransferFunction {
+    let text = match p {
+        crate::volume::phantom::Phantom::SheppLogan => SHEPP_LOGAN_JSON,
+        crate::volume::phantom::Phantom::MarschnerLobb => MARSCHNER_LOBB_JSON,
+    };
+    TransferFunction::from_json(text, "<built-in>").expect("built-in family is valid")
+}
+
+/// A one-basis ramp over the upper three quarters of a value range, for volumes given
+/// without a family (`info`, benchmarks).
+#[must_use]
+pub fn auto_ramp(range: crate::brick::ValueRange) -> TransferFunction {
+    let (lo, hi) = (range.min, range.max.max(range.min + 1e-6));
+    let at = |f: f32| lo + (hi - lo) * f;
+    TransferFunction {
+        bases: vec![super::transfer_function::Basis {
+            name: "ramp".into(),
+            opacity: vec![[at(0.25), 0.0], [at(1.0), 0.5]],
+        }],
+        weights: vec![1.0],
+        color: vec![[lo, 0.1, 0.1, 0.3], [at(0.5), 0.9, 0.6, 0.3], [hi, 1.0, 1.0, 0.9]],
+    }
+}

@@ -1,0 +1,14 @@
+//! Stage 5: cameras, transfer functions and the ray caster.
+
+pub mod camera;
+pub mod families;
+pub mod image;
+pub mod ray_caster;
+#[cfg(test)]
+mod test;
+pub mod transfer_function;
+
+pub use camera::{Camera, PixelRect, Projection, Ray, ViewFrame};
+pub use image::Image;
+pub use ray_caster::{IndexRay, RayCaster, RayStats, RenderSettings};
+pub use transfer_function::{Classifier, SampledTf, TfError, TransferFunction};

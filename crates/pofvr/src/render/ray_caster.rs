@@ -1,0 +1,330 @@
+//! The software ray caster: front-to-back emission–absorption with trilinear samples.
+//!
+//! Samples of a ray lie on one lattice `t_k = k·step` (t in units of the volume's smallest
+//! spacing, measured from the camera), whatever box is being rendered. A box claims the
+//! samples in its half-open interval `[t_near, t_far)`, computed from its face planes, and
+//! neighbouring boxes compute the shared plane's `t` with the same float operations. So the
+//! bricks of a grid partition every ray's samples exactly, and rendering brick by brick
+//! (carrying the accumulator) performs the very operations of the whole-volume render.
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::camera::{Camera, PixelRect, Ray, ViewFrame};
+use super::image::Image;
+use super::transfer_function::Classifier;
+use crate::brick::IndexBox;
+use crate::volume::{Volume, Voxel};
+use crate::with_voxels;
+
+/// Per-frame knobs of the ray caster.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// Sample distance in units of the smallest spacing. Default 1.
+    pub step: f32,
+    /// Early ray termination: stop a ray once its opacity reaches this. Default 0.99;
+    /// 1.0 (or more) disables it.
+    pub ert: f32,
+    /// Lambertian gradient shading with a headlight.
+    pub shade: bool,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings { step: 1.0, ert: 0.99, shade: false }
+    }
+}
+
+/// Rays and samples a render performed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct RayStats {
+    /// Rays that met the rendered box.
+    pub rays: u64,
+    /// Samples taken (after early termination).
+    pub samples: u64,
+}
+
+impl std::ops::AddAssign for RayStats {
+    fn add_assign(&mut self, o: Self) {
+        self.rays += o.rays;
+        self.samples += o.samples;
+    }
+}
+
+/// A ray in index space with `t` in units: `p(t) = o + t·d`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndexRay {
+    /// Origin in voxel index coordinates.
+    pub o: [f32; 3],
+    /// Index-space displacement per unit of `t`.
+    pub d: [f32; 3],
+    /// Unit world direction (for shading).
+    pub dir: [f32; 3],
+}
+
+impl IndexRay {
+    /// Converts a world ray for a volume with `spacing` and smallest spacing `unit`.
+    #[must_use]
+    #[allow(clippy::cast_possible_truncation)]
+    pub fn new(ray: &Ray, spacing: [f32; 3], unit: f32) -> Self {
+        let s = DVec3::from(spacing.map(f64::from));
+        let o = ray.origin / s;
+        let d = ray.dir * f64::from(unit) / s;
+        IndexRay {
+            o: o.to_array().map(|x| x as f32),
+            d: d.to_array().map(|x| x as f32),
+            dir: ray.dir.to_array().map(|x| x as f32),
+        }
+    }
+
+    /// The half-open `t` interval `[t_near, t_far)` inside `b`, or `None` when it misses.
+    #[inline]
+    #[must_use]
+    pub fn span(&self, b: &IndexBox) -> Option<(f32, f32)> {
+        let (mut t0, mut t1) = (f32::NEG_INFINITY, f32::INFINITY);
+        for a in 0..3 {
+            let d = self.d[a];
+            if d == 0.0 {
+                if !(b.lo[a] <= self.o[a] && self.o[a] < b.hi[a]) {
+                    return None;
+                }
+                continue;
+            }
+            // Same expression for every box sharing the plane: the partition is exact.
+            let ta = (b.lo[a] - self.o[a]) / d;
+            let tb = (b.hi[a] - self.o[a]) / d;
+            let (near, far) = if d > 0.0 { (ta, tb) } else { (tb, ta) };
+            t0 = t0.max(near);
+            t1 = t1.min(far);
+        }
+        (t0 < t1).then_some((t0, t1))
+    }
+}
+
+/// First lattice index `k ≥ 0` with `k·step ≥ t`.
+#[inline]
+#[must_use]
+#[allow(clippy::cast_possible_truncation, clippy::cast_precision_loss)]
+pub fn first_sample(t: f32, step: f32) -> i32 {
+    if t <= 0.0 {
+        return 0;
+    }
+    let mut k = (t / step).ceil().min(i32::MAX as f32 - 2.0) as i32;
+    // The division rounds; settle on the exact boundary under the multiplication we sample with.
+    while k > 0 && (k - 1) as f32 * step >= t {
+        k -= 1;
+    }
+    while (k as f32) * step < t {
+        k += 1;
+    }
+    k
+}
+
+/// The lattice indices `[k0, k1)` a box claims on a ray, given its span.
+#[inline]
+#[must_use]
+pub fn sample_range(span: (f32, f32), step: f32) -> (i32, i32) {
+    (first_sample(span.0, step), first_sample(span.1, step))
+}
+
+/// Trilinear interpolation with positions clamped to the volume.
+#[derive(Clone, Copy)]
+pub(crate) struct Trilinear<'v, T> {
+    v: &'v [T],
+    max: [f32; 3],
+    last_cell: [usize; 3],
+    stride: [usize; 3],
+    step: [usize; 3],
+}
+
+impl<'v, T: Voxel> Trilinear<'v, T> {
+    pub(crate) fn new(v: &'v [T], dims: [usize; 3]) -> Self {
+        #[allow(clippy::cast_precision_loss)]
+        let max = dims.map(|d| (d - 1) as f32);
+        let stride = [1, dims[0], dims[0] * dims[1]];
+        Trilinear {
+            v,
+            max,
+            last_cell: dims.map(|d| d.saturating_sub(2)),
+            stride,
+            step: std::array::from_fn(|a| if dims[a] > 1 { stride[a] } else { 0 }),
+        }
+    }
+
+    #[inline(always)]
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss, clippy::cast_precision_loss)]
+    pub(crate) fn sample(&self, p: [f32; 3]) -> f32 {
+        let mut base = 0usize;
+        let mut f = [0f32; 3];
+        for a in 0..3 {
+            let x = p[a].clamp(0.0, self.max[a]);
+            let i = (x as usize).min(self.last_cell[a]);
+            f[a] = x - i as f32;
+            base += i * self.stride[a];
+        }
+        let [sx, sy, sz] = self.step;
+        let v = self.v;
+        let at = |i: usize| v[i].to_f32();
+        let c00 = at(base) + (at(base + sx) - at(base)) * f[0];
+        let c10 = at(base + sy) + (at(base + sy + sx) - at(base + sy)) * f[0];
+        let c01 = at(base + sz) + (at(base + sz + sx) - at(base + sz)) * f[0];
+        let c11 = at(base + sz + sy) + (at(base + sz + sy + sx) - at(base + sz + sy)) * f[0];
+        let c0 = c00 + (c10 - c00) * f[1];
+        let c1 = c01 + (c11 - c01) * f[1];
+        c0 + (c1 - c0) * f[2]
+    }
+}
+
+/// The ray caster: renders a box of the volume over a pixel rectangle, or the whole volume.
+pub struct RayCaster<'a> {
+    volume: &'a Volume,
+    cls: &'a Classifier,
+    settings: RenderSettings,
+}
+
+/// Rows per parallel work item of a full-frame render.
+const TILE_ROWS: usize = 8;
+
+impl<'a> RayCaster<'a> {
+    /// A caster for `volume` with the classification `cls` (built for `settings.step`).
+    #[must_use]
+    pub fn new(volume: &'a Volume, cls: &'a Classifier, settings: RenderSettings) -> Self {
+        RayCaster { volume, cls, settings }
+    }
+
+    /// The settings.
+    #[must_use]
+    pub fn settings(&self) -> RenderSettings {
+        self.settings
+    }
+
+    /// The index-space box of the whole volume.
+    #[must_use]
+    #[allow(clippy::cast_precision_loss)]
+    pub fn volume_box(&self) -> IndexBox {
+        IndexBox { lo: [0.0; 3], hi: self.volume.dims().map(|d| (d - 1) as f32) }
+    }
+
+    /// The index ray through the centre of pixel `(x, y)`.
+    #[must_use]
+    pub fn pixel_ray(&self, camera: &Camera, frame: &ViewFrame, x: u32, y: u32) -> IndexRay {
+        let r = camera.ray(frame, f64::from(x) + 0.5, f64::from(y) + 0.5);
+        IndexRay::new(&r, self.volume.spacing(), self.volume.unit())
+    }
+
+    /// Renders the whole volume (the reference, no bricks, no culling), in parallel over
+    /// bands of rows.
+    #[must_use]
+    pub fn render(&self, camera: &Camera) -> (Image, RayStats) {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let mut image = Image::new(camera.width, camera.height);
+        let frame = camera.frame();
+        let vbox = self.volume_box();
+        let stats = with_voxels!(self.volume.data(), v => {
+            let tri = Trilinear::new(v, self.volume.dims());
+            image
+                .pixels_mut()
+                .par_chunks_mut(w * TILE_ROWS)
+                .enumerate()
+                .map(|(band, rows)| {
+                    let mut st = RayStats::default();
+                    for (i, px) in rows.iter_mut().enumerate() {
+                        #[allow(clippy::cast_possible_truncation)]
+                        let (x, y) = ((i % w) as u32, (band * TILE_ROWS + i / w) as u32);
+                        let ray = self.pixel_ray(camera, &frame, x, y);
+                        if let Some(span) = ray.span(&vbox) {
+                            st.rays += 1;
+                            st.samples += self.march(&tri, &ray, sample_range(span, self.settings.step), px);
+                        }
+                    }
+                    st
+                })
+                .reduce(RayStats::default, |mut a, b| {
+                    a += b;
+                    a
+                })
+        });
+        debug_assert_eq!(image.pixels().len(), w * h);
+        (image, stats)
+    }
+
+    /// Renders the index box `b` alone over `rect` (row-major premultiplied RGBA, starting
+    /// from transparent), serially: callers parallelise over boxes.
+    #[must_use]
+    pub fn render_box(&self, camera: &Camera, frame: &ViewFrame, rect: PixelRect, b: &IndexBox) -> (Vec<[f32; 4]>, RayStats) {
+        let mut out = vec![[0f32; 4]; rect.area()];
+        let st = self.render_box_into(camera, frame, rect, b, &mut out);
+        (out, st)
+    }
+
+    /// As [`RayCaster::render_box`], compositing behind what `out` already holds.
+    pub fn render_box_into(&self, camera: &Camera, frame: &ViewFrame, rect: PixelRect, b: &IndexBox, out: &mut [[f32; 4]]) -> RayStats {
+        with_voxels!(self.volume.data(), v => {
+            let tri = Trilinear::new(v, self.volume.dims());
+            let mut st = RayStats::default();
+            let w = rect.width() as usize;
+            for (i, px) in out.iter_mut().enumerate() {
+                #[allow(clippy::cast_possible_truncation)]
+                let (x, y) = (rect.x0 + (i % w) as u32, rect.y0 + (i / w) as u32);
+                let ray = self.pixel_ray(camera, frame, x, y);
+                if let Some(span) = ray.span(b) {
+                    st.rays += 1;
+                    st.samples += self.march(&tri, &ray, sample_range(span, self.settings.step), px);
+                }
+            }
+            st
+        })
+    }
+
+    /// Composites samples `k0..k1` of `ray` behind `acc`; returns the samples taken.
+    #[inline]
+    #[allow(clippy::cast_precision_loss)]
+    fn march<T: Voxel>(&self, tri: &Trilinear<'_, T>, ray: &IndexRay, (k0, k1): (i32, i32), acc: &mut [f32; 4]) -> u64 {
+        let step = self.settings.step;
+        let ert = self.settings.ert;
+        let mut n = 0u64;
+        for k in k0..k1 {
+            if acc[3] >= ert {
+                break;
+            }
+            let t = k as f32 * step;
+            let p = [ray.o[0] + t * ray.d[0], ray.o[1] + t * ray.d[1], ray.o[2] + t * ray.d[2]];
+            let mut s = self.cls.sample(tri.sample(p));
+            n += 1;
+            if s[3] == 0.0 {
+                continue;
+            }
+            if self.settings.shade {
+                let l = self.lambert(tri, p, ray.dir);
+                s[0] *= l;
+                s[1] *= l;
+                s[2] *= l;
+            }
+            let w = 1.0 - acc[3];
+            acc[0] += w * s[0];
+            acc[1] += w * s[1];
+            acc[2] += w * s[2];
+            acc[3] += w * s[3];
+        }
+        n
+    }
+
+    /// Ambient + diffuse factor with a headlight; the gradient uses central differences at
+    /// ±½ voxel so that it reads only the brick's ghost layer.
+    fn lambert<T: Voxel>(&self, tri: &Trilinear<'_, T>, p: [f32; 3], dir: [f32; 3]) -> f32 {
+        let sp = self.volume.spacing();
+        let mut g = [0f32; 3];
+        for a in 0..3 {
+            let (mut lo, mut hi) = (p, p);
+            lo[a] -= 0.5;
+            hi[a] += 0.5;
+            g[a] = (tri.sample(hi) - tri.sample(lo)) / sp[a];
+        }
+        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        if len <= f32::EPSILON {
+            return 1.0;
+        }
+        let ndotl = ((g[0] * dir[0] + g[1] * dir[1] + g[2] * dir[2]) / len).abs();
+        0.3 + 0.7 * ndotl
+    }
+}

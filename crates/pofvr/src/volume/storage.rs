@@ -1,0 +1,94 @@
+use std::sync::Arc;
+
+use memmap2::Mmap;
+
+use super::Voxel;
+
+/// Typed voxels served either from a memory map (no copy) or from an owned buffer
+/// (decompressed, byte-swapped, misaligned or generated data).
+pub struct Voxels<T: Voxel> {
+    repr: Repr<T>,
+}
+
+enum Repr<T> {
+    Owned(Vec<T>),
+    Mapped { map: Arc<Mmap>, offset: usize, len: usize },
+}
+
+impl<T: Voxel> std::fmt::Debug for Voxels<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Voxels")
+            .field("type", &T::TYPE)
+            .field("len", &self.len())
+            .field("mapped", &self.is_mapped())
+            .finish()
+    }
+}
+
+impl<T: Voxel> Voxels<T> {
+    /// Owns `v`.
+    #[must_use]
+    pub fn owned(v: Vec<T>) -> Self {
+        Voxels { repr: Repr::Owned(v) }
+    }
+
+    /// Serves `len` voxels at byte `offset` of `map`, without copying when the offset is
+    /// aligned for `T` and the file is little-endian; otherwise copies once (and swaps).
+    #[must_use]
+    pub fn from_map(map: Arc<Mmap>, offset: usize, len: usize, big_endian: bool) -> Self {
+        let bytes = &map[offset..offset + len * std::mem::size_of::<T>()];
+        let aligned = bytes.as_ptr().align_offset(std::mem::align_of::<T>()) == 0;
+        if aligned && !(big_endian && std::mem::size_of::<T>() > 1) {
+            return Voxels { repr: Repr::Mapped { map, offset, len } };
+        }
+        Self::from_bytes(bytes, big_endian)
+    }
+
+    /// Copies little- or big-endian bytes into an owned buffer.
+    #[must_use]
+    pub fn from_bytes(bytes: &[u8], big_endian: bool) -> Self {
+        let mut v: Vec<T> = bytes
+            .chunks_exact(std::mem::size_of::<T>())
+            .map(bytemuck::pod_read_unaligned::<T>)
+            .collect();
+        if big_endian && std::mem::size_of::<T>() > 1 {
+            for x in &mut v {
+                *x = x.swap_bytes();
+            }
+        }
+        Voxels::owned(v)
+    }
+
+    /// The voxels.
+    #[inline]
+    #[must_use]
+    pub fn as_slice(&self) -> &[T] {
+        match &self.repr {
+            Repr::Owned(v) => v,
+            Repr::Mapped { map, offset, len } => {
+                bytemuck::cast_slice(&map[*offset..*offset + *len * std::mem::size_of::<T>()])
+            }
+        }
+    }
+
+    /// Number of voxels.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        match &self.repr {
+            Repr::Owned(v) => v.len(),
+            Repr::Mapped { len, .. } => *len,
+        }
+    }
+
+    /// True when empty.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// True when served from a memory map.
+    #[must_use]
+    pub fn is_mapped(&self) -> bool {
+        matches!(self.repr, Repr::Mapped { .. })
+    }
+}
