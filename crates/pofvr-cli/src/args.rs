@@ -25,7 +25,7 @@ pub(crate) enum Command {
     /// Describe a volume: dims, type, spacing, value range, histogram, bricks.
     Info(InfoArgs),
     /// Render one frame of a volume to PNG (and optionally raw float RGBA).
-    Render(RenderArgs),
+    Render(Box<RenderArgs>),
     /// Render the built-in head phantom to demo.png; needs no input.
     Demo(DemoArgs),
     /// Measure performance and write a report.
@@ -91,7 +91,12 @@ pub(crate) struct InfoArgs {
 pub(crate) struct ViewArgs {
     /// View direction around the volume centre: azimuth about +y and elevation, degrees.
     /// > default: 30,20
-    #[arg(long, value_name = "AZ,EL", default_value = "30,20", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "AZ,EL",
+        default_value = "30,20",
+        allow_hyphen_values = true
+    )]
     pub(crate) view: String,
     /// Camera JSON (as written by --camera-out); overrides --view, --size, --projection.
     #[arg(long, value_name = "camera.json")]

@@ -17,7 +17,9 @@ fn main() {
 
 fn run(cli: args::Cli) -> anyhow::Result<()> {
     if cli.threads > 0 {
-        rayon::ThreadPoolBuilder::new().num_threads(cli.threads).build_global()?;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(cli.threads)
+            .build_global()?;
     }
     let ui = progress::Ui::new(cli.quiet);
     match cli.command {

@@ -5,7 +5,9 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::brick::{BrickError, BrickGrid};
-use crate::render::{Camera, Image, RayCaster, RayStats, RenderSettings, SampledTf, TfError, TransferFunction};
+use crate::render::{
+    Camera, Image, RayCaster, RayStats, RenderSettings, SampledTf, TfError, TransferFunction,
+};
 use crate::volume::Volume;
 
 /// Everything a frame needs that does not change with the camera: the opened volume, its
@@ -43,22 +45,43 @@ impl RenderJob {
     ///
     /// # Errors
     /// [`JobError`] for a bad brick size, step or early-termination threshold.
-    pub fn new(volume: Volume, tf: TransferFunction, brick_size: usize, settings: RenderSettings) -> Result<Self, JobError> {
+    pub fn new(
+        volume: Volume,
+        tf: TransferFunction,
+        brick_size: usize,
+        settings: RenderSettings,
+    ) -> Result<Self, JobError> {
         if !(settings.step.is_finite() && settings.step > 1e-3 && settings.step <= 64.0) {
-            return Err(JobError::Setting(format!("--step {} must be in (0.001, 64]", settings.step)));
+            return Err(JobError::Setting(format!(
+                "--step {} must be in (0.001, 64]",
+                settings.step
+            )));
         }
         if !(settings.ert > 0.0 && settings.ert.is_finite()) {
-            return Err(JobError::Setting(format!("--ert {} must be > 0 (≥ 1 disables it)", settings.ert)));
+            return Err(JobError::Setting(format!(
+                "--ert {} must be > 0 (≥ 1 disables it)",
+                settings.ert
+            )));
         }
         let grid = BrickGrid::from_volume(&volume, brick_size)?;
         let sampled = SampledTf::new(&tf, grid.value_range());
-        Ok(RenderJob { volume, grid, tf, sampled, settings })
+        Ok(RenderJob {
+            volume,
+            grid,
+            tf,
+            sampled,
+            settings,
+        })
     }
 
     /// Number of bricks that are empty for the current weights.
     #[must_use]
     pub fn empty_bricks(&self) -> usize {
-        self.grid.ranges().iter().filter(|r| self.sampled.is_empty(**r, &self.tf.weights)).count()
+        self.grid
+            .ranges()
+            .iter()
+            .filter(|r| self.sampled.is_empty(**r, &self.tf.weights))
+            .count()
     }
 }
 
@@ -80,7 +103,11 @@ pub struct FrameStats {
 impl FrameStats {
     fn from_rays(st: RayStats, seconds: f64) -> Self {
         #[allow(clippy::cast_precision_loss)]
-        let sps = if seconds > 0.0 { st.samples as f64 / seconds } else { 0.0 };
+        let sps = if seconds > 0.0 {
+            st.samples as f64 / seconds
+        } else {
+            0.0
+        };
         FrameStats {
             frame_ms: seconds * 1e3,
             rays: st.rays,
@@ -97,5 +124,8 @@ pub fn render_reference(job: &RenderJob, camera: &Camera) -> (Image, FrameStats)
     let start = Instant::now();
     let cls = job.sampled.classify(&job.tf.weights, job.settings.step);
     let (image, st) = RayCaster::new(&job.volume, &cls, job.settings).render(camera);
-    (image, FrameStats::from_rays(st, start.elapsed().as_secs_f64()))
+    (
+        image,
+        FrameStats::from_rays(st, start.elapsed().as_secs_f64()),
+    )
 }

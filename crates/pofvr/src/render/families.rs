@@ -45,6 +45,10 @@ pub fn auto_ramp(range: crate::brick::ValueRange) -> TransferFunction {
             opacity: vec![[at(0.25), 0.0], [at(1.0), 0.5]],
         }],
         weights: vec![1.0],
-        color: vec![[lo, 0.1, 0.1, 0.3], [at(0.5), 0.9, 0.6, 0.3], [hi, 1.0, 1.0, 0.9]],
+        color: vec![
+            [lo, 0.1, 0.1, 0.3],
+            [at(0.5), 0.9, 0.6, 0.3],
+            [hi, 1.0, 1.0, 0.9],
+        ],
     }
 }
