@@ -165,14 +165,23 @@ impl<'v, T: Voxel> Trilinear<'v, T> {
         let mut base = 0usize;
         let mut f = [0f32; 3];
         for a in 0..3 {
-            let x = p[a].clamp(0.0, self.max[a]);
-            let i = (x as usize).min(self.last_cell[a]);
+            // max/min rather than clamp: clamp's `min <= max` assertion is not hoisted.
+            let x = p[a].max(0.0).min(self.max[a]);
+            // SAFETY: x is finite and in [0, dims-1] after the max/min above (NaN positions
+            // cannot occur: rays are finite and volumes hold finite values).
+            let i = (unsafe { x.to_int_unchecked::<u32>() } as usize).min(self.last_cell[a]);
             f[a] = x - i as f32;
             base += i * self.stride[a];
         }
         let [sx, sy, sz] = self.step;
-        let v = self.v;
-        let at = |i: usize| v[i].to_f32();
+        debug_assert!(
+            base + sx + sy + sz < self.v.len(),
+            "{base} out of {}",
+            self.v.len()
+        );
+        // SAFETY: every axis index is clamped to [0, dims-2] (or 0 with a zero step on a
+        // one-voxel axis), so base plus any combination of steps stays inside the volume.
+        let at = |i: usize| unsafe { self.v.get_unchecked(i) }.to_f32();
         let c00 = at(base) + (at(base + sx) - at(base)) * f[0];
         let c10 = at(base + sy) + (at(base + sy + sx) - at(base + sy)) * f[0];
         let c01 = at(base + sz) + (at(base + sz + sx) - at(base + sz)) * f[0];
@@ -305,7 +314,7 @@ impl<'a> RayCaster<'a> {
     }
 
     /// Composites samples `k0..k1` of `ray` behind `acc`; returns the samples taken.
-    #[inline]
+    #[inline(always)]
     #[allow(clippy::cast_precision_loss)]
     fn march<T: Voxel>(
         &self,

@@ -14,6 +14,9 @@ use crate::brick::ValueRange;
 /// Number of lookup-table bins over the volume's value range.
 pub const TF_BINS: usize = 4096;
 
+#[allow(clippy::cast_precision_loss)]
+const BIN_MAX: f32 = (TF_BINS - 1) as f32;
+
 /// Alpha of a unit step is capped here so that τ stays finite.
 const ALPHA_CAP: f32 = 1.0 - 1e-6;
 
@@ -392,9 +395,13 @@ impl Classifier {
     #[must_use]
     #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     pub fn sample(&self, v: f32) -> [f32; 4] {
-        let b = (((v - self.lo) * self.scale).max(0.0) as usize).min(TF_BINS - 1);
-        // SAFETY-free: the clamp keeps `b` in range, so the bounds check folds away.
-        self.rgba[b]
+        let x = ((v - self.lo) * self.scale).max(0.0).min(BIN_MAX);
+        // SAFETY: x is in [0, TF_BINS-1]; `max` maps NaN to 0.
+        let b = unsafe { x.to_int_unchecked::<u32>() } as usize;
+        debug_assert_eq!(self.rgba.len(), TF_BINS);
+        // SAFETY: `rgba` always holds TF_BINS entries (built by `SampledTf::classify`) and
+        // `b` is clamped below TF_BINS.
+        *unsafe { self.rgba.get_unchecked(b) }
     }
 }
 
