@@ -395,6 +395,8 @@ impl Classifier {
     #[must_use]
     #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     pub fn sample(&self, v: f32) -> [f32; 4] {
+        // Not clamp: `max` turns a NaN into 0, which keeps the unchecked cast sound.
+        #[allow(clippy::manual_clamp)]
         let x = ((v - self.lo) * self.scale).max(0.0).min(BIN_MAX);
         // SAFETY: x is in [0, TF_BINS-1]; `max` maps NaN to 0.
         let b = unsafe { x.to_int_unchecked::<u32>() } as usize;
