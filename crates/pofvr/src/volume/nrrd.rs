@@ -128,11 +128,17 @@ pub fn read_header(path: &Path) -> Result<NrrdHeader, VolumeError> {
             .filter(|c| !c.is_whitespace())
             .collect::<String>()
             .to_ascii_lowercase();
+        // With "data file: LIST" the rest of the header is the list of file names.
+        let list = key == "datafile" && value.split_whitespace().next() == Some("LIST");
         if fields
             .insert(key, (name.to_string(), value.to_string()))
             .is_some()
         {
             return Err(VolumeError::header(path, name, "given more than once"));
+        }
+        if list {
+            ended = true;
+            break;
         }
     }
     let get = |key: &str| fields.get(key).map(|(_, v)| v.as_str());
