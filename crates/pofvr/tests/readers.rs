@@ -109,7 +109,7 @@ fn every_format_gives_the_same_voxels() {
         ),
         w(
             "detached.nhdr",
-            &[format!("NRRD0004\ntype: unsigned short\ndimension: 3\nsizes: 17 9 6\nspace directions: (0.5,0,0) (0,0.75,0) (0,0,1.5)\nendian: big\nencoding: raw\ndata file: v_be.raw\n").as_bytes()],
+            &[b"NRRD0004\ntype: unsigned short\ndimension: 3\nsizes: 17 9 6\nspace directions: (0.5,0,0) (0,0.75,0) (0,0,1.5)\nendian: big\nencoding: raw\ndata file: v_be.raw\n"],
         ),
         w(
             "detached_gz.nhdr",
