@@ -7,8 +7,9 @@
 //! neither is); `BinaryDataByteOrderMSB` / `ElementByteOrderMSB` (little-endian when absent,
 //! as in MetaIO); `CompressedData` (zlib, streamed); `HeaderSize` (bytes from the start of
 //! the data file, -1 for "the voxels are the last bytes of the file", as MetaIO reads it);
-//! `ElementNumberOfChannels = 1`. Keys are matched case-insensitively. Anything else that
-//! would change how the voxels are read is rejected with an error naming the file and field.
+//! `ElementNumberOfChannels = 1`; `BinaryData = True` (ASCII data are rejected). Keys are
+//! matched case-insensitively. Anything else that would change how the voxels are read is
+//! rejected with an error naming the file and field.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -184,6 +185,15 @@ pub fn read_header(path: &Path) -> Result<MetaHeader, VolumeError> {
     } else {
         Endian::Little
     };
+    if let Some(v) = get("BinaryData") {
+        if !parse_bool(path, "BinaryData", v)? {
+            return Err(VolumeError::header(
+                path,
+                "BinaryData",
+                "ASCII (BinaryData = False) MetaImage data are not supported",
+            ));
+        }
+    }
     let compressed = match get("CompressedData") {
         None => false,
         Some(v) => parse_bool(path, "CompressedData", v)?,

@@ -657,6 +657,7 @@ fn mhd_bad_headers_are_rejected() {
         ("channels", "NDims = 3\nDimSize = 5 4 3\nElementNumberOfChannels = 3\nElementType = MET_UCHAR\nElementDataFile = x.raw".into(), vec!["\"ElementNumberOfChannels\"", "unsupported value \"3\""]),
         ("list", "NDims = 3\nDimSize = 5 4 3\nElementType = MET_UCHAR\nElementDataFile = LIST".into(), vec!["\"ElementDataFile\"", "multi-file data"]),
         ("bool", "NDims = 3\nDimSize = 5 4 3\nElementType = MET_UCHAR\nCompressedData = maybe\nElementDataFile = x.raw".into(), vec!["\"CompressedData\"", "expected True or False"]),
+        ("ascii", "NDims = 3\nDimSize = 5 4 3\nBinaryData = False\nElementType = MET_UCHAR\nElementDataFile = x.raw".into(), vec!["\"BinaryData\"", "ASCII"]),
         ("nokv", "NDims 3\nElementDataFile = x.raw".into(), vec!["line 1 is not a \"Key = Value\" field"]),
         ("zero", "NDims = 3\nDimSize = 5 4 0\nElementType = MET_UCHAR\nElementDataFile = x.raw".into(), vec!["bad dimensions [5, 4, 0]"]),
         ("zneg", "NDims = 3\nDimSize = 5 4 3\nElementType = MET_UCHAR\nCompressedData = True\nHeaderSize = -1\nElementDataFile = x.raw".into(), vec!["\"HeaderSize\"", "only allowed for uncompressed"]),
