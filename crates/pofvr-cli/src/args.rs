@@ -28,6 +28,8 @@ pub(crate) enum Command {
     Render(RenderArgs),
     /// Render the built-in head phantom to demo.png; needs no input.
     Demo(DemoArgs),
+    /// Serve the interactive viewer on http://127.0.0.1:8080/.
+    Serve(crate::cmd::serve::ServeArgs),
     /// Measure performance and write a report.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -91,7 +93,12 @@ pub(crate) struct InfoArgs {
 pub(crate) struct ViewArgs {
     /// View direction around the volume centre: azimuth about +y and elevation, degrees.
     /// > default: 30,20
-    #[arg(long, value_name = "AZ,EL", default_value = "30,20", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "AZ,EL",
+        default_value = "30,20",
+        allow_hyphen_values = true
+    )]
     pub(crate) view: String,
     /// Camera JSON (as written by --camera-out); overrides --view, --size, --projection.
     #[arg(long, value_name = "camera.json")]

@@ -17,13 +17,16 @@ fn main() {
 
 fn run(cli: args::Cli) -> anyhow::Result<()> {
     if cli.threads > 0 {
-        rayon::ThreadPoolBuilder::new().num_threads(cli.threads).build_global()?;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(cli.threads)
+            .build_global()?;
     }
     let ui = progress::Ui::new(cli.quiet);
     match cli.command {
         args::Command::Info(a) => cmd::info::run(&a, &ui),
         args::Command::Render(a) => cmd::render::run(&a, &ui),
         args::Command::Demo(a) => cmd::demo::run(&a, &ui),
+        args::Command::Serve(a) => cmd::serve::run(&a, &ui),
         args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
     }
 }

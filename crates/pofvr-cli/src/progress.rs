@@ -25,7 +25,9 @@ impl Ui {
     /// A spinner for a step of unknown length.
     pub(crate) fn spinner(&self, msg: &str) -> ProgressBar {
         let pb = ProgressBar::with_draw_target(None, self.target());
-        pb.set_style(ProgressStyle::with_template("{spinner} {msg} [{elapsed}]").expect("static template"));
+        pb.set_style(
+            ProgressStyle::with_template("{spinner} {msg} [{elapsed}]").expect("static template"),
+        );
         pb.set_message(msg.to_string());
         pb.enable_steady_tick(Duration::from_millis(120));
         pb

@@ -11,14 +11,25 @@ use pofvr::volume::{RawSpec, Volume};
 use crate::args::{TfArgs, ViewArgs, VolumeArgs};
 
 /// Parses `a,b,c` into numbers, naming the flag on error.
-pub(crate) fn parse_list<T: std::str::FromStr>(flag: &str, s: &str, n: Option<usize>) -> Result<Vec<T>> {
+pub(crate) fn parse_list<T: std::str::FromStr>(
+    flag: &str,
+    s: &str,
+    n: Option<usize>,
+) -> Result<Vec<T>> {
     let v: Vec<T> = s
         .split(',')
-        .map(|x| x.trim().parse::<T>().map_err(|_| anyhow!("{flag}: {x:?} is not a number (in {s:?})")))
+        .map(|x| {
+            x.trim()
+                .parse::<T>()
+                .map_err(|_| anyhow!("{flag}: {x:?} is not a number (in {s:?})"))
+        })
         .collect::<Result<_>>()?;
     if let Some(n) = n {
         if v.len() != n {
-            bail!("{flag}: expected {n} comma-separated values, got {} in {s:?}", v.len());
+            bail!(
+                "{flag}: expected {n} comma-separated values, got {} in {s:?}",
+                v.len()
+            );
         }
     }
     Ok(v)
@@ -26,11 +37,19 @@ pub(crate) fn parse_list<T: std::str::FromStr>(flag: &str, s: &str, n: Option<us
 
 /// A phantom named `phantom:KIND:N`, if `spec` is one.
 pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, usize)>> {
-    let Some(rest) = spec.strip_prefix("phantom:") else { return Ok(None) };
+    let Some(rest) = spec.strip_prefix("phantom:") else {
+        return Ok(None);
+    };
     let mut parts = rest.split(':');
-    let kind: Phantom = parts.next().unwrap_or("head").parse().map_err(|e: String| anyhow!("{spec}: {e}"))?;
+    let kind: Phantom = parts
+        .next()
+        .unwrap_or("head")
+        .parse()
+        .map_err(|e: String| anyhow!("{spec}: {e}"))?;
     let n = match parts.next() {
-        Some(n) => n.parse::<usize>().map_err(|_| anyhow!("{spec}: size {n:?} is not a number"))?,
+        Some(n) => n
+            .parse::<usize>()
+            .map_err(|_| anyhow!("{spec}: size {n:?} is not a number"))?,
         None => 128,
     };
     if !(2..=2048).contains(&n) {
@@ -49,8 +68,14 @@ pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
         (None, None) => None,
         (Some(d), Some(t)) => {
             let dims = parse_list::<usize>("--dims", d, Some(3))?;
-            let mut spec = RawSpec::new([dims[0], dims[1], dims[2]], t.parse().map_err(|e: String| anyhow!("--dtype: {e}"))?);
-            spec.endian = a.endian.parse().map_err(|e: String| anyhow!("--endian: {e}"))?;
+            let mut spec = RawSpec::new(
+                [dims[0], dims[1], dims[2]],
+                t.parse().map_err(|e: String| anyhow!("--dtype: {e}"))?,
+            );
+            spec.endian = a
+                .endian
+                .parse()
+                .map_err(|e: String| anyhow!("--endian: {e}"))?;
             if let Some(s) = &a.spacing {
                 let s = parse_list::<f32>("--spacing", s, Some(3))?;
                 spec.spacing = [s[0], s[1], s[2]];
@@ -83,9 +108,15 @@ pub(crate) fn required_tf(a: &TfArgs, volume_spec: &str) -> Result<TransferFunct
 
 /// `WxH`.
 pub(crate) fn size(s: &str) -> Result<(u32, u32)> {
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| anyhow!("--size: expected WxH, got {s:?}"))?;
-    let w: u32 = w.parse().map_err(|_| anyhow!("--size: width {w:?} is not a number"))?;
-    let h: u32 = h.parse().map_err(|_| anyhow!("--size: height {h:?} is not a number"))?;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| anyhow!("--size: expected WxH, got {s:?}"))?;
+    let w: u32 = w
+        .parse()
+        .map_err(|_| anyhow!("--size: width {w:?} is not a number"))?;
+    let h: u32 = h
+        .parse()
+        .map_err(|_| anyhow!("--size: height {h:?} is not a number"))?;
     if !(1..=16384).contains(&w) || !(1..=16384).contains(&h) {
         bail!("--size: {w}x{h} is out of range 1..=16384");
     }
@@ -99,19 +130,27 @@ pub(crate) fn camera(v: &ViewArgs, volume: &Volume) -> Result<Camera> {
     }
     let view = parse_list::<f64>("--view", &v.view, Some(2))?;
     let (w, h) = size(&v.size)?;
-    let projection: Projection = v.projection.parse().map_err(|e: String| anyhow!("--projection: {e}"))?;
+    let projection: Projection = v
+        .projection
+        .parse()
+        .map_err(|e: String| anyhow!("--projection: {e}"))?;
     Ok(Camera::orbit(volume, view[0], view[1], w, h, projection))
 }
 
 /// Ray-caster settings.
 pub(crate) fn settings(v: &ViewArgs) -> RenderSettings {
-    RenderSettings { step: v.step, ert: v.ert, shade: v.shade }
+    RenderSettings {
+        step: v.step,
+        ert: v.ert,
+        shade: v.shade,
+    }
 }
 
 /// Writes the camera JSON if asked.
 pub(crate) fn write_camera(v: &ViewArgs, cam: &Camera) -> Result<()> {
     if let Some(p) = &v.camera_out {
-        pofvr::io::write_bytes_atomic(p, cam.to_json().as_bytes()).with_context(|| "--camera-out")?;
+        pofvr::io::write_bytes_atomic(p, cam.to_json().as_bytes())
+            .with_context(|| "--camera-out")?;
     }
     Ok(())
 }

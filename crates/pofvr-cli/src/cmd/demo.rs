@@ -10,8 +10,16 @@ pub(crate) fn run(a: &DemoArgs, ui: &Ui) -> Result<()> {
     let sp = ui.spinner("generating the head phantom");
     let vol = Phantom::SheppLogan.generate(a.n);
     let cam = Camera::orbit(&vol, 30.0, 20.0, 512, 512, Projection::Orthographic);
-    let settings = RenderSettings { shade: true, ..RenderSettings::default() };
-    let job = RenderJob::new(vol, families::for_phantom(Phantom::SheppLogan), 16, settings)?;
+    let settings = RenderSettings {
+        shade: true,
+        ..RenderSettings::default()
+    };
+    let job = RenderJob::new(
+        vol,
+        families::for_phantom(Phantom::SheppLogan),
+        16,
+        settings,
+    )?;
     sp.set_message("rendering");
     let (image, stats) = render_reference(&job, &cam);
     sp.finish_and_clear();

@@ -30,7 +30,11 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
         None => ("automatic ramp", families::auto_ramp(range)),
     };
     let sampled = SampledTf::new(&tf, range);
-    let empty = grid.ranges().iter().filter(|r| sampled.is_empty(**r, &tf.weights)).count();
+    let empty = grid
+        .ranges()
+        .iter()
+        .filter(|r| sampled.is_empty(**r, &tf.weights))
+        .count();
     let total: u64 = hist.iter().sum();
     #[allow(clippy::cast_precision_loss)]
     let hist_json: Vec<serde_json::Value> = hist
@@ -60,8 +64,22 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
     let d = vol.dims();
     let s = vol.spacing();
     println!("volume     {}", vol.source());
-    println!("dims       {} × {} × {}  ({} voxels)", d[0], d[1], d[2], d[0] * d[1] * d[2]);
-    println!("type       {}{}", vol.data_type(), if vol.data().is_mapped() { "  (memory-mapped)" } else { "" });
+    println!(
+        "dims       {} × {} × {}  ({} voxels)",
+        d[0],
+        d[1],
+        d[2],
+        d[0] * d[1] * d[2]
+    );
+    println!(
+        "type       {}{}",
+        vol.data_type(),
+        if vol.data().is_mapped() {
+            "  (memory-mapped)"
+        } else {
+            ""
+        }
+    );
     println!("spacing    {} × {} × {}", s[0], s[1], s[2]);
     println!("range      {} .. {}", range.min, range.max);
     println!("histogram  (16 bins over the range, % of voxels)");
@@ -74,7 +92,14 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
         println!("  {lo:>12.3}  {pct:>6.2}%  {bar}");
     }
     let c = grid.counts();
-    println!("bricks     {}³: {} × {} × {} = {}", grid.brick_size(), c[0], c[1], c[2], grid.len());
+    println!(
+        "bricks     {}³: {} × {} × {} = {}",
+        grid.brick_size(),
+        c[0],
+        c[1],
+        c[2],
+        grid.len()
+    );
     println!(
         "empty      {} of {} for the {} transfer function ({}; weights {:?})",
         empty,

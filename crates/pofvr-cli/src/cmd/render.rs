@@ -39,7 +39,8 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
         t0.elapsed().as_secs_f64()
     );
     if let Some(r) = &a.reference {
-        let reference = Image::read_raw(r, cam.width, cam.height).with_context(|| format!("--reference {}", r.display()))?;
+        let reference = Image::read_raw(r, cam.width, cam.height)
+            .with_context(|| format!("--reference {}", r.display()))?;
         println!(
             "reference {}: rmse {:.3e}, max abs diff {:.3e}",
             r.display(),
