@@ -25,7 +25,7 @@ pub(crate) enum Command {
     /// Describe a volume: dims, type, spacing, value range, histogram, bricks.
     Info(InfoArgs),
     /// Render one frame of a volume to PNG (and optionally raw float RGBA).
-    Render(RenderArgs),
+    Render(Box<RenderArgs>),
     /// Render the built-in head phantom to demo.png; needs no input.
     Demo(DemoArgs),
     /// Serve the interactive viewer on http://127.0.0.1:8080/.
@@ -148,6 +148,26 @@ pub(crate) struct RenderArgs {
     /// Compare with a raw float image of the same size and print RMSE and max difference.
     #[arg(long, value_name = "FILE")]
     pub(crate) reference: Option<PathBuf>,
+    #[command(flatten)]
+    pub(crate) frame: FrameArgs,
+}
+
+/// Culling and the parallel frame.
+#[derive(Args, Debug, Clone)]
+pub(crate) struct FrameArgs {
+    /// Culling mode: none, pof (conservative POFs), pof-set (aggressive POF sets) or exact
+    /// (the sequential oracle, to measure how close POFs get).
+    /// > default: pof when --pof is given, otherwise none
+    #[arg(long)]
+    pub(crate) cull: Option<String>,
+    /// Opacity at or above which a pixel hides what lies behind it.
+    /// > default: 0.95
+    #[arg(long, default_value_t = 0.95)]
+    pub(crate) cull_threshold: f32,
+    /// Ray-cast the whole volume in one pass with no bricks and no culling (the reference
+    /// renderer that culled frames are checked against).
+    #[arg(long, conflicts_with = "cull")]
+    pub(crate) whole: bool,
 }
 
 #[derive(Args, Debug)]

@@ -22,8 +22,14 @@ pub struct WriteError {
 /// # Errors
 /// [`WriteError`] naming `path` when the directory is not writable, `fill` fails or the
 /// rename fails; the temp file is removed in every case.
-pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut File) -> std::io::Result<()>) -> Result<(), WriteError> {
-    let wrap = |err| WriteError { path: path.to_path_buf(), err };
+pub fn write_atomic(
+    path: &Path,
+    fill: impl FnOnce(&mut File) -> std::io::Result<()>,
+) -> Result<(), WriteError> {
+    let wrap = |err| WriteError {
+        path: path.to_path_buf(),
+        err,
+    };
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -68,6 +74,9 @@ mod tests {
     #[test]
     fn unwritable_directory_names_the_path() {
         let err = write_bytes_atomic(Path::new("/nonexistent-dir/x/out.png"), b"x").unwrap_err();
-        assert!(err.to_string().contains("/nonexistent-dir/x/out.png"), "{err}");
+        assert!(
+            err.to_string().contains("/nonexistent-dir/x/out.png"),
+            "{err}"
+        );
     }
 }

@@ -17,6 +17,7 @@
 #![warn(missing_docs)]
 
 pub mod brick;
+pub mod cull;
 pub mod frame;
 pub mod io;
 pub mod render;

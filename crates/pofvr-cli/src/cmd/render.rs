@@ -1,7 +1,8 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use pofvr::frame::{render_reference, RenderJob};
+use pofvr::cull::CullMode;
+use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
 use pofvr::render::Image;
 
 use crate::args::RenderArgs;
@@ -16,7 +17,21 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
     let cam = resolve::camera(&a.view, &vol)?;
     let job = RenderJob::new(vol, tf, a.volume.brick, resolve::settings(&a.view))?;
     sp.set_message("rendering");
-    let (image, stats) = render_reference(&job, &cam);
+    let (image, stats) = if a.frame.whole {
+        render_reference(&job, &cam)
+    } else {
+        let cull: CullMode = match &a.frame.cull {
+            Some(c) => c
+                .parse()
+                .map_err(|e: String| anyhow::anyhow!("--cull: {e}"))?,
+            None => CullMode::None,
+        };
+        let opts = FrameOptions {
+            cull,
+            cull_threshold: a.frame.cull_threshold,
+        };
+        render_frame(&job, None, &cam, &opts)?
+    };
     sp.finish_and_clear();
     image.write_png(&a.out)?;
     if let Some(p) = &a.out_raw {
@@ -38,6 +53,19 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
         stats.samples_per_second / 1e6,
         t0.elapsed().as_secs_f64()
     );
+    if let Some(mode) = stats.cull {
+        let b = stats.bricks;
+        eprintln!(
+            "bricks: {} total, {} empty, {} non-empty, {} culled ({:.1}% of non-empty) by {}, {} visible",
+            b.total,
+            b.empty,
+            b.non_empty,
+            b.culled,
+            100.0 * b.culled as f64 / b.non_empty.max(1) as f64,
+            mode.name(),
+            b.visible
+        );
+    }
     if let Some(r) = &a.reference {
         let reference = Image::read_raw(r, cam.width, cam.height)
             .with_context(|| format!("--reference {}", r.display()))?;

@@ -19,7 +19,9 @@ use crate::with_voxels;
 pub const DEFAULT_BRICK_SIZE: usize = 16;
 
 /// Index of a brick in the grid, x fastest.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 pub struct BrickId(pub u32);
 
 impl BrickId {
@@ -79,7 +81,12 @@ impl BrickGrid {
         let dims = volume.dims();
         let counts = dims.map(|d| (d.saturating_sub(1)).div_ceil(brick_size).max(1));
         let n = counts[0] * counts[1] * counts[2];
-        let mut grid = BrickGrid { brick_size, volume_dims: dims, counts, ranges: Vec::new() };
+        let mut grid = BrickGrid {
+            brick_size,
+            volume_dims: dims,
+            counts,
+            ranges: Vec::new(),
+        };
         let ranges = with_voxels!(volume.data(), v => {
             (0..n).into_par_iter().map(|b| grid.measure(v, dims, BrickId(b as u32))).collect()
         });
@@ -108,9 +115,8 @@ impl BrickGrid {
     pub fn voxel_bounds(&self, id: BrickId) -> ([usize; 3], [usize; 3]) {
         let c = self.coords(id);
         let lo: [usize; 3] = std::array::from_fn(|a| c[a] * self.brick_size);
-        let hi: [usize; 3] = std::array::from_fn(|a| {
-            ((c[a] + 1) * self.brick_size).min(self.volume_dims[a] - 1)
-        });
+        let hi: [usize; 3] =
+            std::array::from_fn(|a| ((c[a] + 1) * self.brick_size).min(self.volume_dims[a] - 1));
         (lo, hi)
     }
 
@@ -119,7 +125,10 @@ impl BrickGrid {
     #[allow(clippy::cast_precision_loss)]
     pub fn index_box(&self, id: BrickId) -> IndexBox {
         let (lo, hi) = self.voxel_bounds(id);
-        IndexBox { lo: lo.map(|x| x as f32), hi: hi.map(|x| x as f32) }
+        IndexBox {
+            lo: lo.map(|x| x as f32),
+            hi: hi.map(|x| x as f32),
+        }
     }
 
     /// Brick coordinates `(i, j, k)` of `id`.
@@ -127,7 +136,11 @@ impl BrickGrid {
     #[must_use]
     pub fn coords(&self, id: BrickId) -> [usize; 3] {
         let i = id.index();
-        [i % self.counts[0], (i / self.counts[0]) % self.counts[1], i / (self.counts[0] * self.counts[1])]
+        [
+            i % self.counts[0],
+            (i / self.counts[0]) % self.counts[1],
+            i / (self.counts[0] * self.counts[1]),
+        ]
     }
 
     /// The id of the brick at coordinates `c`.
@@ -190,8 +203,14 @@ impl BrickGrid {
     #[must_use]
     pub fn value_range(&self) -> ValueRange {
         self.ranges.iter().fold(
-            ValueRange { min: f32::INFINITY, max: f32::NEG_INFINITY },
-            |a, r| ValueRange { min: a.min.min(r.min), max: a.max.max(r.max) },
+            ValueRange {
+                min: f32::INFINITY,
+                max: f32::NEG_INFINITY,
+            },
+            |a, r| ValueRange {
+                min: a.min.min(r.min),
+                max: a.max.max(r.max),
+            },
         )
     }
 }

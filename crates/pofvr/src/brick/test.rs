@@ -28,7 +28,11 @@ fn brick_range_matches_brute_force_over_its_ghosted_box() {
                 }
             }
         }
-        assert_eq!(grid.range(id), ValueRange { min: mn, max: mx }, "brick {id:?}");
+        assert_eq!(
+            grid.range(id),
+            ValueRange { min: mn, max: mx },
+            "brick {id:?}"
+        );
     }
 }
 

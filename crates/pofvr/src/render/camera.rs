@@ -29,7 +29,9 @@ impl std::str::FromStr for Projection {
         match s.to_ascii_lowercase().as_str() {
             "orthographic" | "ortho" => Ok(Projection::Orthographic),
             "perspective" | "persp" => Ok(Projection::Perspective),
-            other => Err(format!("unknown projection {other:?}, expected orthographic or perspective")),
+            other => Err(format!(
+                "unknown projection {other:?}, expected orthographic or perspective"
+            )),
         }
     }
 }
@@ -113,19 +115,36 @@ impl Camera {
     /// A camera orbiting the volume's centre: azimuth about +y from +z, elevation towards
     /// +y, both in degrees, the whole volume fitted in the image.
     #[must_use]
-    pub fn orbit(volume: &Volume, azimuth: f64, elevation: f64, width: u32, height: u32, projection: Projection) -> Self {
+    pub fn orbit(
+        volume: &Volume,
+        azimuth: f64,
+        elevation: f64,
+        width: u32,
+        height: u32,
+        projection: Projection,
+    ) -> Self {
         let ext = volume.world_extent().map(f64::from);
         Self::orbit_box(ext, azimuth, elevation, width, height, projection)
     }
 
     /// As [`Camera::orbit`] for a box `[0, extent]`.
     #[must_use]
-    pub fn orbit_box(extent: [f64; 3], azimuth: f64, elevation: f64, width: u32, height: u32, projection: Projection) -> Self {
+    pub fn orbit_box(
+        extent: [f64; 3],
+        azimuth: f64,
+        elevation: f64,
+        width: u32,
+        height: u32,
+        projection: Projection,
+    ) -> Self {
         let centre = DVec3::from(extent) * 0.5;
         // The bounding sphere fits the volume from every direction, so the framing does not
         // jump while orbiting.
         let radius = (DVec3::from(extent).length() * 0.5).max(1e-3) * 1.02;
-        let (az, el) = (azimuth.to_radians(), elevation.clamp(-90.0, 90.0).to_radians());
+        let (az, el) = (
+            azimuth.to_radians(),
+            elevation.clamp(-90.0, 90.0).to_radians(),
+        );
         let dir_to_eye = DVec3::new(el.cos() * az.sin(), el.sin(), el.cos() * az.cos());
         let view_up = if el.cos() < 1e-6 {
             DVec3::new(-az.sin(), 0.0, -az.cos()) * el.sin().signum()
@@ -135,7 +154,11 @@ impl Camera {
         let aspect = f64::from(width.max(1)) / f64::from(height.max(1));
         let view_angle = 30.0_f64;
         let half = (view_angle * 0.5).to_radians();
-        let fit = if aspect < 1.0 { radius / aspect } else { radius };
+        let fit = if aspect < 1.0 {
+            radius / aspect
+        } else {
+            radius
+        };
         let distance = match projection {
             Projection::Orthographic => 2.0 * radius,
             Projection::Perspective => fit / half.sin(),
@@ -158,8 +181,14 @@ impl Camera {
     /// [`CameraError`] naming the file and field.
     pub fn from_file(path: &Path) -> Result<Self, CameraError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|err| CameraError::Io { file: file.clone(), err })?;
-        let cam: Camera = serde_json::from_str(&text).map_err(|err| CameraError::Json { file: file.clone(), err })?;
+        let text = std::fs::read_to_string(path).map_err(|err| CameraError::Io {
+            file: file.clone(),
+            err,
+        })?;
+        let cam: Camera = serde_json::from_str(&text).map_err(|err| CameraError::Json {
+            file: file.clone(),
+            err,
+        })?;
         cam.validate(&file)?;
         Ok(cam)
     }
@@ -170,7 +199,13 @@ impl Camera {
     /// [`CameraError::Field`] for zero image size, coincident eye and focal point, an up
     /// vector parallel to the view, a non-positive scale or an angle outside (0, 180).
     pub fn validate(&self, file: &str) -> Result<(), CameraError> {
-        let bad = |field, why: &str| Err(CameraError::Field { file: file.to_string(), field, why: why.to_string() });
+        let bad = |field, why: &str| {
+            Err(CameraError::Field {
+                file: file.to_string(),
+                field,
+                why: why.to_string(),
+            })
+        };
         if self.width == 0 || self.height == 0 || self.width > 16384 || self.height > 16384 {
             return bad("width", "image size must be 1..=16384 on each side");
         }
@@ -180,12 +215,19 @@ impl Camera {
         }
         let up = DVec3::from(self.view_up);
         if !up.is_finite() || f.normalize().cross(up).length() < 1e-9 {
-            return bad("view_up", "must not be zero or parallel to the view direction");
+            return bad(
+                "view_up",
+                "must not be zero or parallel to the view direction",
+            );
         }
-        if self.projection == Projection::Orthographic && !(self.parallel_scale > 0.0 && self.parallel_scale.is_finite()) {
+        if self.projection == Projection::Orthographic
+            && !(self.parallel_scale > 0.0 && self.parallel_scale.is_finite())
+        {
             return bad("parallel_scale", "must be > 0");
         }
-        if self.projection == Projection::Perspective && !(self.view_angle > 0.0 && self.view_angle < 180.0) {
+        if self.projection == Projection::Perspective
+            && !(self.view_angle > 0.0 && self.view_angle < 180.0)
+        {
             return bad("view_angle", "must be in (0, 180) degrees");
         }
         Ok(())
@@ -225,10 +267,14 @@ impl Camera {
         let v = (1.0 - y / f64::from(self.height) * 2.0) * h;
         let eye = DVec3::from(self.position);
         match self.projection {
-            Projection::Orthographic => Ray { origin: eye + frame.right * u + frame.up * v, dir: frame.forward },
-            Projection::Perspective => {
-                Ray { origin: eye, dir: (frame.forward + frame.right * u + frame.up * v).normalize() }
-            }
+            Projection::Orthographic => Ray {
+                origin: eye + frame.right * u + frame.up * v,
+                dir: frame.forward,
+            },
+            Projection::Perspective => Ray {
+                origin: eye,
+                dir: (frame.forward + frame.right * u + frame.up * v).normalize(),
+            },
         }
     }
 
@@ -257,7 +303,12 @@ impl Camera {
     /// contains every pixel whose ray meets the box.
     #[must_use]
     pub fn footprint(&self, frame: &ViewFrame, lo: DVec3, hi: DVec3) -> Option<PixelRect> {
-        let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        let (mut x0, mut y0, mut x1, mut y1) = (
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        );
         for c in 0..8 {
             let p = DVec3::new(
                 if c & 1 == 0 { lo.x } else { hi.x },
@@ -266,7 +317,12 @@ impl Camera {
             );
             let Some((x, y, _)) = self.project(frame, p) else {
                 // A corner behind the eye: the box may cover any part of the image.
-                return Some(PixelRect { x0: 0, y0: 0, x1: self.width, y1: self.height });
+                return Some(PixelRect {
+                    x0: 0,
+                    y0: 0,
+                    x1: self.width,
+                    y1: self.height,
+                });
             };
             x0 = x0.min(x);
             y0 = y0.min(y);
@@ -353,7 +409,10 @@ mod tests {
             let r = cam.ray(&f, 17.5, 61.5);
             let p = r.origin + r.dir * (cam.position[0] - cam.focal_point[0]).abs().max(50.0);
             let (x, y, _) = cam.project(&f, p).unwrap();
-            assert!((x - 17.5).abs() < 1e-6 && (y - 61.5).abs() < 1e-6, "{projection:?}: {x} {y}");
+            assert!(
+                (x - 17.5).abs() < 1e-6 && (y - 61.5).abs() < 1e-6,
+                "{projection:?}: {x} {y}"
+            );
         }
     }
 
@@ -371,7 +430,10 @@ mod tests {
                         if c & 4 == 0 { 0.0 } else { 70.0 },
                     );
                     let (x, y, d) = cam.project(&f, p).unwrap();
-                    assert!(d > 0.0 && (0.0..=64.0).contains(&x) && (0.0..=48.0).contains(&y), "{az},{el}: {x},{y}");
+                    assert!(
+                        d > 0.0 && (0.0..=64.0).contains(&x) && (0.0..=48.0).contains(&y),
+                        "{az},{el}: {x},{y}"
+                    );
                 }
             }
         }
@@ -379,9 +441,25 @@ mod tests {
 
     #[test]
     fn json_round_trip_uses_the_contract_field_names() {
-        let cam = Camera::orbit_box([10.0, 10.0, 10.0], 10.0, 20.0, 32, 16, Projection::Perspective);
+        let cam = Camera::orbit_box(
+            [10.0, 10.0, 10.0],
+            10.0,
+            20.0,
+            32,
+            16,
+            Projection::Perspective,
+        );
         let j = cam.to_json();
-        for key in ["projection", "position", "focal_point", "view_up", "parallel_scale", "view_angle", "width", "height"] {
+        for key in [
+            "projection",
+            "position",
+            "focal_point",
+            "view_up",
+            "parallel_scale",
+            "view_angle",
+            "width",
+            "height",
+        ] {
             assert!(j.contains(&format!("\"{key}\"")), "{key} missing in {j}");
         }
         assert!(j.contains("\"perspective\""));

@@ -6,7 +6,7 @@ use super::TransferFunction;
 /// features 75–100, shell 250).
 pub const SHEPP_LOGAN_JSON: &str = r#"{
   "bases": [
-    {"name": "skin", "opacity": [[20, 0.0], [45, 0.04], [110, 0.04], [140, 0.0]]},
+    {"name": "skin", "opacity": [[20, 0.0], [45, 0.12], [110, 0.12], [140, 0.0]]},
     {"name": "bone", "opacity": [[150, 0.0], [240, 0.6], [255, 0.6]]}
   ],
   "weights": [1.0, 1.0],
@@ -45,6 +45,10 @@ pub fn auto_ramp(range: crate::brick::ValueRange) -> TransferFunction {
             opacity: vec![[at(0.25), 0.0], [at(1.0), 0.5]],
         }],
         weights: vec![1.0],
-        color: vec![[lo, 0.1, 0.1, 0.3], [at(0.5), 0.9, 0.6, 0.3], [hi, 1.0, 1.0, 0.9]],
+        color: vec![
+            [lo, 0.1, 0.1, 0.3],
+            [at(0.5), 0.9, 0.6, 0.3],
+            [hi, 1.0, 1.0, 0.9],
+        ],
     }
 }

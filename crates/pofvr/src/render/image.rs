@@ -17,13 +17,21 @@ impl Image {
     /// A transparent black image.
     #[must_use]
     pub fn new(width: u32, height: u32) -> Self {
-        Image { width, height, pixels: vec![[0.0; 4]; width as usize * height as usize] }
+        Image {
+            width,
+            height,
+            pixels: vec![[0.0; 4]; width as usize * height as usize],
+        }
     }
 
     /// Wraps pixels; `None` when the count does not match.
     #[must_use]
     pub fn from_pixels(width: u32, height: u32, pixels: Vec<[f32; 4]>) -> Option<Self> {
-        (pixels.len() == width as usize * height as usize).then_some(Image { width, height, pixels })
+        (pixels.len() == width as usize * height as usize).then_some(Image {
+            width,
+            height,
+            pixels,
+        })
     }
 
     /// Width.
@@ -111,14 +119,28 @@ impl Image {
         if bytes.len() != width as usize * height as usize * 16 {
             return Err(std::io::Error::new(
                 std::io::ErrorKind::InvalidData,
-                format!("{}: {} bytes, expected {}×{}×16", path.display(), bytes.len(), width, height),
+                format!(
+                    "{}: {} bytes, expected {}×{}×16",
+                    path.display(),
+                    bytes.len(),
+                    width,
+                    height
+                ),
             ));
         }
         let pixels = bytes
             .chunks_exact(16)
-            .map(|c| std::array::from_fn(|i| f32::from_le_bytes(c[i * 4..i * 4 + 4].try_into().expect("4 bytes"))))
+            .map(|c| {
+                std::array::from_fn(|i| {
+                    f32::from_le_bytes(c[i * 4..i * 4 + 4].try_into().expect("4 bytes"))
+                })
+            })
             .collect();
-        Ok(Image { width, height, pixels })
+        Ok(Image {
+            width,
+            height,
+            pixels,
+        })
     }
 
     /// Largest absolute difference of any channel, or `None` for different sizes.

@@ -31,7 +31,11 @@ pub struct RenderSettings {
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { step: 1.0, ert: 0.99, shade: false }
+        RenderSettings {
+            step: 1.0,
+            ert: 0.99,
+            shade: false,
+        }
     }
 }
 
@@ -152,19 +156,32 @@ impl<'v, T: Voxel> Trilinear<'v, T> {
     }
 
     #[inline(always)]
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss, clippy::cast_precision_loss)]
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        clippy::cast_precision_loss
+    )]
     pub(crate) fn sample(&self, p: [f32; 3]) -> f32 {
         let mut base = 0usize;
         let mut f = [0f32; 3];
         for a in 0..3 {
-            let x = p[a].clamp(0.0, self.max[a]);
-            let i = (x as usize).min(self.last_cell[a]);
+            // max/min rather than clamp: clamp's `min <= max` assertion is not hoisted.
+            let x = p[a].max(0.0).min(self.max[a]);
+            // SAFETY: x is finite and in [0, dims-1] after the max/min above (NaN positions
+            // cannot occur: rays are finite and volumes hold finite values).
+            let i = (unsafe { x.to_int_unchecked::<u32>() } as usize).min(self.last_cell[a]);
             f[a] = x - i as f32;
             base += i * self.stride[a];
         }
         let [sx, sy, sz] = self.step;
-        let v = self.v;
-        let at = |i: usize| v[i].to_f32();
+        debug_assert!(
+            base + sx + sy + sz < self.v.len(),
+            "{base} out of {}",
+            self.v.len()
+        );
+        // SAFETY: every axis index is clamped to [0, dims-2] (or 0 with a zero step on a
+        // one-voxel axis), so base plus any combination of steps stays inside the volume.
+        let at = |i: usize| unsafe { self.v.get_unchecked(i) }.to_f32();
         let c00 = at(base) + (at(base + sx) - at(base)) * f[0];
         let c10 = at(base + sy) + (at(base + sy + sx) - at(base + sy)) * f[0];
         let c01 = at(base + sz) + (at(base + sz + sx) - at(base + sz)) * f[0];
@@ -189,7 +206,11 @@ impl<'a> RayCaster<'a> {
     /// A caster for `volume` with the classification `cls` (built for `settings.step`).
     #[must_use]
     pub fn new(volume: &'a Volume, cls: &'a Classifier, settings: RenderSettings) -> Self {
-        RayCaster { volume, cls, settings }
+        RayCaster {
+            volume,
+            cls,
+            settings,
+        }
     }
 
     /// The settings.
@@ -202,7 +223,10 @@ impl<'a> RayCaster<'a> {
     #[must_use]
     #[allow(clippy::cast_precision_loss)]
     pub fn volume_box(&self) -> IndexBox {
-        IndexBox { lo: [0.0; 3], hi: self.volume.dims().map(|d| (d - 1) as f32) }
+        IndexBox {
+            lo: [0.0; 3],
+            hi: self.volume.dims().map(|d| (d - 1) as f32),
+        }
     }
 
     /// The index ray through the centre of pixel `(x, y)`.
@@ -251,14 +275,27 @@ impl<'a> RayCaster<'a> {
     /// Renders the index box `b` alone over `rect` (row-major premultiplied RGBA, starting
     /// from transparent), serially: callers parallelise over boxes.
     #[must_use]
-    pub fn render_box(&self, camera: &Camera, frame: &ViewFrame, rect: PixelRect, b: &IndexBox) -> (Vec<[f32; 4]>, RayStats) {
+    pub fn render_box(
+        &self,
+        camera: &Camera,
+        frame: &ViewFrame,
+        rect: PixelRect,
+        b: &IndexBox,
+    ) -> (Vec<[f32; 4]>, RayStats) {
         let mut out = vec![[0f32; 4]; rect.area()];
         let st = self.render_box_into(camera, frame, rect, b, &mut out);
         (out, st)
     }
 
     /// As [`RayCaster::render_box`], compositing behind what `out` already holds.
-    pub fn render_box_into(&self, camera: &Camera, frame: &ViewFrame, rect: PixelRect, b: &IndexBox, out: &mut [[f32; 4]]) -> RayStats {
+    pub fn render_box_into(
+        &self,
+        camera: &Camera,
+        frame: &ViewFrame,
+        rect: PixelRect,
+        b: &IndexBox,
+        out: &mut [[f32; 4]],
+    ) -> RayStats {
         with_voxels!(self.volume.data(), v => {
             let tri = Trilinear::new(v, self.volume.dims());
             let mut st = RayStats::default();
@@ -277,9 +314,15 @@ impl<'a> RayCaster<'a> {
     }
 
     /// Composites samples `k0..k1` of `ray` behind `acc`; returns the samples taken.
-    #[inline]
+    #[inline(always)]
     #[allow(clippy::cast_precision_loss)]
-    fn march<T: Voxel>(&self, tri: &Trilinear<'_, T>, ray: &IndexRay, (k0, k1): (i32, i32), acc: &mut [f32; 4]) -> u64 {
+    fn march<T: Voxel>(
+        &self,
+        tri: &Trilinear<'_, T>,
+        ray: &IndexRay,
+        (k0, k1): (i32, i32),
+        acc: &mut [f32; 4],
+    ) -> u64 {
         let step = self.settings.step;
         let ert = self.settings.ert;
         let mut n = 0u64;
@@ -288,7 +331,11 @@ impl<'a> RayCaster<'a> {
                 break;
             }
             let t = k as f32 * step;
-            let p = [ray.o[0] + t * ray.d[0], ray.o[1] + t * ray.d[1], ray.o[2] + t * ray.d[2]];
+            let p = [
+                ray.o[0] + t * ray.d[0],
+                ray.o[1] + t * ray.d[1],
+                ray.o[2] + t * ray.d[2],
+            ];
             let mut s = self.cls.sample(tri.sample(p));
             n += 1;
             if s[3] == 0.0 {

@@ -14,6 +14,9 @@ use crate::brick::ValueRange;
 /// Number of lookup-table bins over the volume's value range.
 pub const TF_BINS: usize = 4096;
 
+#[allow(clippy::cast_precision_loss)]
+const BIN_MAX: f32 = (TF_BINS - 1) as f32;
+
 /// Alpha of a unit step is capped here so that τ stays finite.
 const ALPHA_CAP: f32 = 1.0 - 1e-6;
 
@@ -79,7 +82,10 @@ impl TransferFunction {
     /// [`TfError`] naming the file and the offending field.
     pub fn from_file(path: &Path) -> Result<Self, TfError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|err| TfError::Io { file: file.clone(), err })?;
+        let text = std::fs::read_to_string(path).map_err(|err| TfError::Io {
+            file: file.clone(),
+            err,
+        })?;
         Self::from_json(&text, &file)
     }
 
@@ -88,8 +94,10 @@ impl TransferFunction {
     /// # Errors
     /// [`TfError`] naming `file` and the offending field.
     pub fn from_json(text: &str, file: &str) -> Result<Self, TfError> {
-        let mut tf: TransferFunction =
-            serde_json::from_str(text).map_err(|err| TfError::Json { file: file.to_string(), err })?;
+        let mut tf: TransferFunction = serde_json::from_str(text).map_err(|err| TfError::Json {
+            file: file.to_string(),
+            err,
+        })?;
         if tf.weights.is_empty() {
             tf.weights = vec![1.0; tf.bases.len()];
         }
@@ -103,9 +111,16 @@ impl TransferFunction {
     /// [`TfError::Field`] for no bases, unsorted points, alpha or colour outside [0, 1],
     /// non-finite numbers, negative weights or a weight count that does not match.
     pub fn validate(&self, file: &str) -> Result<(), TfError> {
-        let err = |field: String, why: String| TfError::Field { file: file.to_string(), field, why };
+        let err = |field: String, why: String| TfError::Field {
+            file: file.to_string(),
+            field,
+            why,
+        };
         if self.bases.is_empty() {
-            return Err(err("bases".into(), "no bases: at least one basis is needed".into()));
+            return Err(err(
+                "bases".into(),
+                "no bases: at least one basis is needed".into(),
+            ));
         }
         for (i, b) in self.bases.iter().enumerate() {
             if b.opacity.is_empty() {
@@ -120,7 +135,10 @@ impl TransferFunction {
                     return Err(err(f, format!("alpha {a} is outside [0, 1]")));
                 }
                 if j > 0 && *v < b.opacity[j - 1][0] {
-                    return Err(err(f, format!("values not sorted: {v} after {}", b.opacity[j - 1][0])));
+                    return Err(err(
+                        f,
+                        format!("values not sorted: {v} after {}", b.opacity[j - 1][0]),
+                    ));
                 }
             }
         }
@@ -137,7 +155,10 @@ impl TransferFunction {
                 return Err(err(f, "colour components must be in [0, 1]".into()));
             }
             if j > 0 && p[0] < self.color[j - 1][0] {
-                return Err(err(f, format!("values not sorted: {} after {}", p[0], self.color[j - 1][0])));
+                return Err(err(
+                    f,
+                    format!("values not sorted: {} after {}", p[0], self.color[j - 1][0]),
+                ));
             }
         }
         Ok(())
@@ -149,16 +170,27 @@ impl TransferFunction {
     /// [`TfError::Field`] when the count differs from the bases or a weight is negative or
     /// not finite.
     pub fn validate_weights(&self, weights: &[f32], file: &str) -> Result<(), TfError> {
-        let err = |field: String, why: String| TfError::Field { file: file.to_string(), field, why };
+        let err = |field: String, why: String| TfError::Field {
+            file: file.to_string(),
+            field,
+            why,
+        };
         if weights.len() != self.bases.len() {
             return Err(err(
                 "weights".into(),
-                format!("got {} weights, expected one per basis ({})", weights.len(), self.bases.len()),
+                format!(
+                    "got {} weights, expected one per basis ({})",
+                    weights.len(),
+                    self.bases.len()
+                ),
             ));
         }
         for (i, k) in weights.iter().enumerate() {
             if !k.is_finite() || *k < 0.0 {
-                return Err(err(format!("weights[{i}]"), format!("weight {k} must be finite and ≥ 0")));
+                return Err(err(
+                    format!("weights[{i}]"),
+                    format!("weight {k} must be finite and ≥ 0"),
+                ));
             }
         }
         Ok(())
@@ -263,8 +295,16 @@ impl SampledTf {
                     .collect()
             })
             .collect();
-        let color = (0..TF_BINS).map(|b| piecewise_rgb(&tf.color, centre(b))).collect();
-        SampledTf { lo, scale, tau, color, names: tf.bases.iter().map(|b| b.name.clone()).collect() }
+        let color = (0..TF_BINS)
+            .map(|b| piecewise_rgb(&tf.color, centre(b)))
+            .collect();
+        SampledTf {
+            lo,
+            scale,
+            tau,
+            color,
+            names: tf.bases.iter().map(|b| b.name.clone()).collect(),
+        }
     }
 
     /// Number of bases.
@@ -282,7 +322,11 @@ impl SampledTf {
     /// The bin of value `v`.
     #[inline(always)]
     #[must_use]
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss, clippy::cast_precision_loss)]
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        clippy::cast_precision_loss
+    )]
     pub fn bin(&self, v: f32) -> usize {
         (((v - self.lo) * self.scale).max(0.0) as usize).min(TF_BINS - 1)
     }
@@ -328,7 +372,11 @@ impl SampledTf {
                 [c[0] * a, c[1] * a, c[2] * a, a]
             })
             .collect();
-        Classifier { lo: self.lo, scale: self.scale, rgba }
+        Classifier {
+            lo: self.lo,
+            scale: self.scale,
+            rgba,
+        }
     }
 }
 
@@ -347,9 +395,15 @@ impl Classifier {
     #[must_use]
     #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     pub fn sample(&self, v: f32) -> [f32; 4] {
-        let b = (((v - self.lo) * self.scale).max(0.0) as usize).min(TF_BINS - 1);
-        // SAFETY-free: the clamp keeps `b` in range, so the bounds check folds away.
-        self.rgba[b]
+        // Not clamp: `max` turns a NaN into 0, which keeps the unchecked cast sound.
+        #[allow(clippy::manual_clamp)]
+        let x = ((v - self.lo) * self.scale).max(0.0).min(BIN_MAX);
+        // SAFETY: x is in [0, TF_BINS-1]; `max` maps NaN to 0.
+        let b = unsafe { x.to_int_unchecked::<u32>() } as usize;
+        debug_assert_eq!(self.rgba.len(), TF_BINS);
+        // SAFETY: `rgba` always holds TF_BINS entries (built by `SampledTf::classify`) and
+        // `b` is clamped below TF_BINS.
+        *unsafe { self.rgba.get_unchecked(b) }
     }
 }
 
@@ -369,23 +423,39 @@ mod tests {
         let tf = TransferFunction::from_json(family(), "f.json").unwrap();
         assert_eq!(tf.weights, vec![1.0, 0.5]);
         let no_w = family().replace(r#""weights":[1.0,0.5],"#, "");
-        assert_eq!(TransferFunction::from_json(&no_w, "f.json").unwrap().weights, vec![1.0, 1.0]);
+        assert_eq!(
+            TransferFunction::from_json(&no_w, "f.json")
+                .unwrap()
+                .weights,
+            vec![1.0, 1.0]
+        );
     }
 
     fn field_error(text: &str) -> String {
-        TransferFunction::from_json(text, "bad.json").unwrap_err().to_string()
+        TransferFunction::from_json(text, "bad.json")
+            .unwrap_err()
+            .to_string()
     }
 
     #[test]
     fn errors_name_file_and_field() {
         let e = field_error(&family().replace("[100,0]", "[40,0]"));
-        assert!(e.contains("bad.json") && e.contains("bases[0].opacity[2]") && e.contains("sorted"), "{e}");
+        assert!(
+            e.contains("bad.json") && e.contains("bases[0].opacity[2]") && e.contains("sorted"),
+            "{e}"
+        );
         let e = field_error(&family().replace("0.9", "1.5"));
-        assert!(e.contains("bases[1].opacity[1]") && e.contains("outside [0, 1]"), "{e}");
+        assert!(
+            e.contains("bases[1].opacity[1]") && e.contains("outside [0, 1]"),
+            "{e}"
+        );
         let e = field_error(&family().replace("[1.0,0.5]", "[1.0,-0.5]"));
         assert!(e.contains("weights[1]"), "{e}");
         let e = field_error(&family().replace("[1.0,0.5]", "[1.0]"));
-        assert!(e.contains("weights") && e.contains("expected one per basis"), "{e}");
+        assert!(
+            e.contains("weights") && e.contains("expected one per basis"),
+            "{e}"
+        );
         let e = field_error(r#"{"bases":[],"color":[[0,1,1,1]]}"#);
         assert!(e.contains("bases") && e.contains("no bases"), "{e}");
         let e = field_error("{\"bases\": [");
@@ -406,10 +476,25 @@ mod tests {
     #[test]
     fn emptiness_follows_active_bases_on_the_bins() {
         let tf = TransferFunction::from_json(family(), "f").unwrap();
-        let s = SampledTf::new(&tf, ValueRange { min: 0.0, max: 255.0 });
-        let skin_only = ValueRange { min: 20.0, max: 60.0 };
-        let bone_only = ValueRange { min: 170.0, max: 210.0 };
-        let nothing = ValueRange { min: 110.0, max: 140.0 };
+        let s = SampledTf::new(
+            &tf,
+            ValueRange {
+                min: 0.0,
+                max: 255.0,
+            },
+        );
+        let skin_only = ValueRange {
+            min: 20.0,
+            max: 60.0,
+        };
+        let bone_only = ValueRange {
+            min: 170.0,
+            max: 210.0,
+        };
+        let nothing = ValueRange {
+            min: 110.0,
+            max: 140.0,
+        };
         assert!(!s.is_empty(skin_only, &[1.0, 1.0]));
         assert!(s.is_empty(skin_only, &[0.0, 1.0]));
         assert!(!s.is_empty(bone_only, &[0.0, 1.0]));
@@ -424,7 +509,13 @@ mod tests {
             "f",
         )
         .unwrap();
-        let s = SampledTf::new(&tf, ValueRange { min: 0.0, max: 10.0 });
+        let s = SampledTf::new(
+            &tf,
+            ValueRange {
+                min: 0.0,
+                max: 10.0,
+            },
+        );
         let one = s.classify(&[1.0, 0.0], 1.0).sample(5.0)[3];
         assert!((one - 0.3).abs() < 1e-6);
         let both = s.classify(&[1.0, 1.0], 1.0).sample(5.0)[3];

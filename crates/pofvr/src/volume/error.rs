@@ -78,7 +78,10 @@ pub enum VolumeError {
 impl VolumeError {
     /// Wraps an I/O error with the file it concerns.
     pub(crate) fn io(path: &std::path::Path, err: std::io::Error) -> Self {
-        VolumeError::Io { file: path.display().to_string(), err }
+        VolumeError::Io {
+            file: path.display().to_string(),
+            err,
+        }
     }
     /// A header problem.
     pub(crate) fn header(source: &std::path::Path, field: &str, why: impl Into<String>) -> Self {

@@ -225,7 +225,10 @@ impl Volume {
         let source = source.into();
         let n = checked_voxel_count(&source, dims)?;
         if spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(VolumeError::BadSpacing { file: source, spacing });
+            return Err(VolumeError::BadSpacing {
+                file: source,
+                spacing,
+            });
         }
         if data.len() != n {
             return Err(VolumeError::SizeMismatch {
@@ -245,7 +248,12 @@ impl Volume {
                 });
             }
         }
-        Ok(Volume { dims, spacing, data, source })
+        Ok(Volume {
+            dims,
+            spacing,
+            data,
+            source,
+        })
     }
 
     /// Opens a volume file, choosing the reader by extension: `.nrrd`/`.nhdr`,
@@ -265,7 +273,9 @@ impl Volume {
         } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
             nifti::open(path)
         } else {
-            Err(VolumeError::UnknownFormat { file: path.display().to_string() })
+            Err(VolumeError::UnknownFormat {
+                file: path.display().to_string(),
+            })
         }
     }
 
@@ -343,7 +353,9 @@ pub(crate) fn checked_voxel_count(source: &str, dims: [usize; 3]) -> Result<usiz
         .ok_or_else(|| bad("the voxel count overflows"))?;
     // Index arithmetic in the samplers is done in i32 lanes on each axis and in usize overall.
     if dims.iter().any(|d| *d > (1 << 24)) || n.checked_mul(4).is_none() {
-        return Err(bad("a dimension is larger than 16777216 or the byte size overflows"));
+        return Err(bad(
+            "a dimension is larger than 16777216 or the byte size overflows",
+        ));
     }
     Ok(n)
 }

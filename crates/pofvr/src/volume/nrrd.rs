@@ -8,5 +8,9 @@ use super::{Volume, VolumeError};
 /// # Errors
 /// Always, until the reader lands.
 pub fn open(path: &Path) -> Result<Volume, VolumeError> {
-    Err(VolumeError::header(path, "format", "nrrd reader not built yet"))
+    Err(VolumeError::header(
+        path,
+        "format",
+        "nrrd reader not built yet",
+    ))
 }

@@ -19,7 +19,9 @@ impl std::str::FromStr for Phantom {
         match s.to_ascii_lowercase().replace(['-', '_'], "").as_str() {
             "shepplogan" | "head" => Ok(Phantom::SheppLogan),
             "marschnerlobb" | "ml" => Ok(Phantom::MarschnerLobb),
-            other => Err(format!("unknown phantom {other:?}, expected shepp-logan or marschner-lobb")),
+            other => Err(format!(
+                "unknown phantom {other:?}, expected shepp-logan or marschner-lobb"
+            )),
         }
     }
 }
@@ -34,16 +36,66 @@ struct Ellipsoid {
 
 // Kak & Slaney's 3D Shepp–Logan geometry with Toft's intensities, on [-1, 1]^3.
 const SHEPP_LOGAN: [Ellipsoid; 10] = [
-    Ellipsoid { c: [0.0, 0.0, 0.0], r: [0.69, 0.92, 0.9], phi_deg: 0.0, value: 1.0 },
-    Ellipsoid { c: [0.0, -0.0184, 0.0], r: [0.6624, 0.874, 0.88], phi_deg: 0.0, value: -0.8 },
-    Ellipsoid { c: [0.22, 0.0, -0.25], r: [0.11, 0.31, 0.22], phi_deg: -18.0, value: -0.2 },
-    Ellipsoid { c: [-0.22, 0.0, -0.25], r: [0.16, 0.41, 0.21], phi_deg: 18.0, value: -0.2 },
-    Ellipsoid { c: [0.0, 0.35, -0.25], r: [0.21, 0.25, 0.35], phi_deg: 0.0, value: 0.1 },
-    Ellipsoid { c: [0.0, 0.1, -0.25], r: [0.046, 0.046, 0.046], phi_deg: 0.0, value: 0.1 },
-    Ellipsoid { c: [-0.08, -0.605, -0.25], r: [0.046, 0.023, 0.02], phi_deg: 0.0, value: 0.1 },
-    Ellipsoid { c: [0.0, -0.1, -0.25], r: [0.046, 0.046, 0.046], phi_deg: 0.0, value: 0.1 },
-    Ellipsoid { c: [0.06, -0.605, -0.25], r: [0.023, 0.023, 0.02], phi_deg: 0.0, value: 0.1 },
-    Ellipsoid { c: [0.0, -0.605, -0.25], r: [0.023, 0.046, 0.02], phi_deg: 0.0, value: 0.1 },
+    Ellipsoid {
+        c: [0.0, 0.0, 0.0],
+        r: [0.69, 0.92, 0.9],
+        phi_deg: 0.0,
+        value: 1.0,
+    },
+    Ellipsoid {
+        c: [0.0, -0.0184, 0.0],
+        r: [0.6624, 0.874, 0.88],
+        phi_deg: 0.0,
+        value: -0.8,
+    },
+    Ellipsoid {
+        c: [0.22, 0.0, -0.25],
+        r: [0.11, 0.31, 0.22],
+        phi_deg: -18.0,
+        value: -0.2,
+    },
+    Ellipsoid {
+        c: [-0.22, 0.0, -0.25],
+        r: [0.16, 0.41, 0.21],
+        phi_deg: 18.0,
+        value: -0.2,
+    },
+    Ellipsoid {
+        c: [0.0, 0.35, -0.25],
+        r: [0.21, 0.25, 0.35],
+        phi_deg: 0.0,
+        value: 0.1,
+    },
+    Ellipsoid {
+        c: [0.0, 0.1, -0.25],
+        r: [0.046, 0.046, 0.046],
+        phi_deg: 0.0,
+        value: 0.1,
+    },
+    Ellipsoid {
+        c: [-0.08, -0.605, -0.25],
+        r: [0.046, 0.023, 0.02],
+        phi_deg: 0.0,
+        value: 0.1,
+    },
+    Ellipsoid {
+        c: [0.0, -0.1, -0.25],
+        r: [0.046, 0.046, 0.046],
+        phi_deg: 0.0,
+        value: 0.1,
+    },
+    Ellipsoid {
+        c: [0.06, -0.605, -0.25],
+        r: [0.023, 0.023, 0.02],
+        phi_deg: 0.0,
+        value: 0.1,
+    },
+    Ellipsoid {
+        c: [0.0, -0.605, -0.25],
+        r: [0.023, 0.046, 0.02],
+        phi_deg: 0.0,
+        value: 0.1,
+    },
 ];
 
 impl Phantom {
@@ -64,7 +116,11 @@ impl Phantom {
             Phantom::SheppLogan => {
                 let mut v = vec![0u8; n * n * n];
                 for (idx, out) in v.iter_mut().enumerate() {
-                    let p = [to_unit(idx % n), to_unit((idx / n) % n), to_unit(idx / (n * n))];
+                    let p = [
+                        to_unit(idx % n),
+                        to_unit((idx / n) % n),
+                        to_unit(idx / (n * n)),
+                    ];
                     let mut value = 0.0;
                     for e in &SHEPP_LOGAN {
                         let (s, c) = e.phi_deg.to_radians().sin_cos();
@@ -87,10 +143,15 @@ impl Phantom {
                 let pi = std::f64::consts::PI;
                 let mut v = vec![0f32; n * n * n];
                 for (idx, out) in v.iter_mut().enumerate() {
-                    let (x, y, z) = (to_unit(idx % n), to_unit((idx / n) % n), to_unit(idx / (n * n)));
+                    let (x, y, z) = (
+                        to_unit(idx % n),
+                        to_unit((idx / n) % n),
+                        to_unit(idx / (n * n)),
+                    );
                     let r = (x * x + y * y).sqrt();
                     let rho = (2.0 * pi * fm * (pi * r / 2.0).cos()).cos();
-                    let f = ((1.0 - (pi * z / 2.0).sin()) + alpha * (1.0 + rho)) / (2.0 * (1.0 + alpha));
+                    let f = ((1.0 - (pi * z / 2.0).sin()) + alpha * (1.0 + rho))
+                        / (2.0 * (1.0 + alpha));
                     #[allow(clippy::cast_possible_truncation)]
                     {
                         *out = f as f32;

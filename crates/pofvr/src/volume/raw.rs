@@ -26,7 +26,9 @@ impl std::str::FromStr for Endian {
         match s.to_ascii_lowercase().as_str() {
             "little" | "le" => Ok(Endian::Little),
             "big" | "be" => Ok(Endian::Big),
-            other => Err(format!("unknown endianness {other:?}, expected little or big")),
+            other => Err(format!(
+                "unknown endianness {other:?}, expected little or big"
+            )),
         }
     }
 }
@@ -50,7 +52,13 @@ impl RawSpec {
     /// A little-endian layout with unit spacing and no header.
     #[must_use]
     pub fn new(dims: [usize; 3], dtype: DataType) -> Self {
-        RawSpec { dims, dtype, endian: Endian::Little, spacing: [1.0; 3], offset: 0 }
+        RawSpec {
+            dims,
+            dtype,
+            endian: Endian::Little,
+            spacing: [1.0; 3],
+            offset: 0,
+        }
     }
 }
 
@@ -80,7 +88,12 @@ pub fn open(path: &Path, spec: &RawSpec) -> Result<Volume, VolumeError> {
         // Bricks are touched in space-filling-curve order, not file order.
         let _ = map.advise(memmap2::Advice::Random);
     }
-    let data = typed_from_map(Arc::new(map), usize::try_from(spec.offset).unwrap_or(0), n, spec);
+    let data = typed_from_map(
+        Arc::new(map),
+        usize::try_from(spec.offset).unwrap_or(0),
+        n,
+        spec,
+    );
     Volume::new(spec.dims, spec.spacing, data, source)
 }
 
@@ -120,7 +133,12 @@ pub fn from_reader(
             }
             Ok(k) => filled += k,
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(VolumeError::Decode { file: name, why: e.to_string() }),
+            Err(e) => {
+                return Err(VolumeError::Decode {
+                    file: name,
+                    why: e.to_string(),
+                })
+            }
         }
     }
     let mut extra = [0u8; 1];
@@ -130,10 +148,17 @@ pub fn from_reader(
             return Err(VolumeError::SizeMismatch {
                 file: name,
                 expected: expected as u64,
-                got: expected as u64 + 1 + std::io::copy(&mut reader, &mut std::io::sink()).unwrap_or(0),
+                got: expected as u64
+                    + 1
+                    + std::io::copy(&mut reader, &mut std::io::sink()).unwrap_or(0),
             })
         }
-        Err(e) => return Err(VolumeError::Decode { file: name, why: e.to_string() }),
+        Err(e) => {
+            return Err(VolumeError::Decode {
+                file: name,
+                why: e.to_string(),
+            })
+        }
     }
     let big = spec.endian == Endian::Big;
     let data = match spec.dtype {

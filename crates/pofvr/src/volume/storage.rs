@@ -12,7 +12,11 @@ pub struct Voxels<T: Voxel> {
 
 enum Repr<T> {
     Owned(Vec<T>),
-    Mapped { map: Arc<Mmap>, offset: usize, len: usize },
+    Mapped {
+        map: Arc<Mmap>,
+        offset: usize,
+        len: usize,
+    },
 }
 
 impl<T: Voxel> std::fmt::Debug for Voxels<T> {
@@ -29,7 +33,9 @@ impl<T: Voxel> Voxels<T> {
     /// Owns `v`.
     #[must_use]
     pub fn owned(v: Vec<T>) -> Self {
-        Voxels { repr: Repr::Owned(v) }
+        Voxels {
+            repr: Repr::Owned(v),
+        }
     }
 
     /// Serves `len` voxels at byte `offset` of `map`, without copying when the offset is
@@ -39,7 +45,9 @@ impl<T: Voxel> Voxels<T> {
         let bytes = &map[offset..offset + len * std::mem::size_of::<T>()];
         let aligned = bytes.as_ptr().align_offset(std::mem::align_of::<T>()) == 0;
         if aligned && !(big_endian && std::mem::size_of::<T>() > 1) {
-            return Voxels { repr: Repr::Mapped { map, offset, len } };
+            return Voxels {
+                repr: Repr::Mapped { map, offset, len },
+            };
         }
         Self::from_bytes(bytes, big_endian)
     }

@@ -1,0 +1,337 @@
+//! Stage 4: per-frame visibility culling of bricks (paper §3.3).
+//!
+//! Bricks are visited in a visibility order valid for every ray; an opacity buffer over the
+//! tile accumulates a *lower bound* of what the bricks in front composite. A brick whose
+//! footprint already reads ≥ the threshold at every pixel its rays reach is culled: the
+//! pixels it could change are at least that opaque, so it changes them by at most
+//! 1 − threshold. A visible brick adds its bound over its *core* footprint only (pixels whose
+//! ray runs at least the bound's core length inside it), which is where the bound holds.
+
+pub mod range_bound;
+#[cfg(test)]
+mod test;
+
+use std::time::Instant;
+
+use glam::DVec3;
+
+use crate::brick::{BrickGrid, BrickId};
+use crate::render::{Camera, IndexRay, PixelRect, Projection, RayCaster, SampledTf, ViewFrame};
+use crate::volume::Volume;
+
+/// How bricks are culled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CullMode {
+    /// No culling: every non-empty brick is rendered.
+    None,
+    /// Conservative POF culling (Eq. 3 over the per-basis POFs).
+    Pof,
+    /// Aggressive POF-set culling (§3.2.3).
+    PofSet,
+    /// The sequential oracle: bricks are rendered front to back and tested against the
+    /// opacity actually composited. Exists to measure how close POF culling gets.
+    Exact,
+}
+
+impl CullMode {
+    /// The flag spelling.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            CullMode::None => "none",
+            CullMode::Pof => "pof",
+            CullMode::PofSet => "pof-set",
+            CullMode::Exact => "exact",
+        }
+    }
+
+    /// True when the mode reads precomputed POFs.
+    #[must_use]
+    pub fn needs_pofs(self) -> bool {
+        matches!(self, CullMode::Pof | CullMode::PofSet)
+    }
+}
+
+impl std::str::FromStr for CullMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "none" => Ok(CullMode::None),
+            "pof" => Ok(CullMode::Pof),
+            "pof-set" | "pofset" | "pof_set" => Ok(CullMode::PofSet),
+            "exact" => Ok(CullMode::Exact),
+            other => Err(format!(
+                "unknown cull mode {other:?}, expected none, pof, pof-set or exact"
+            )),
+        }
+    }
+}
+
+/// A lower bound of a brick's composited opacity over its core footprint: what culling
+/// needs of precomputed POFs.
+pub trait OpacityBound: Sync {
+    /// Minimum `t`-span (in units of the smallest spacing) of a ray inside a brick for the
+    /// bound to hold on that ray.
+    fn core_length(&self) -> f32;
+    /// Bound for parallel rays of unit world direction `dir`.
+    fn opacity(&self, brick: BrickId, dir: DVec3, weights: &[f32], aggressive: bool) -> f32;
+    /// Bound for every ray whose direction lies within `half_angle` of `axis`.
+    fn opacity_cone(
+        &self,
+        brick: BrickId,
+        axis: DVec3,
+        half_angle: f64,
+        weights: &[f32],
+        aggressive: bool,
+    ) -> f32;
+}
+
+/// Per-frame geometry of the bricks: which are empty, their footprints and a visibility
+/// order. Shared by every rank of a frame.
+pub struct FrameBricks {
+    /// Non-empty bricks in a front-to-back order valid for every ray.
+    pub order: Vec<BrickId>,
+    /// Footprint (clipped to the image) of each brick by id; `None` when empty or off-screen.
+    pub footprints: Vec<Option<PixelRect>>,
+    /// Number of bricks empty for the current weights.
+    pub empty: usize,
+}
+
+impl FrameBricks {
+    /// Finds the non-empty bricks, their footprints and a visibility order.
+    ///
+    /// The order key is a brick-grid distance that grows by one at every face a ray
+    /// crosses: Σₐ sₐ·iₐ for parallel rays (sₐ the sign of the direction) and
+    /// Σₐ |iₐ − eₐ| from the eye's brick cell for perspective. Along any ray the key is
+    /// strictly increasing, so sorting by it is front to back for every ray at once.
+    #[must_use]
+    pub fn new(
+        volume: &Volume,
+        grid: &BrickGrid,
+        sampled: &SampledTf,
+        weights: &[f32],
+        camera: &Camera,
+    ) -> Self {
+        let frame = camera.frame();
+        let spacing = DVec3::from(volume.spacing().map(f64::from));
+        let b = grid.brick_size() as f64;
+        let eye_cell = (DVec3::from(camera.position) / spacing / b).floor();
+        let mut keyed = Vec::new();
+        let mut footprints = vec![None; grid.len()];
+        let mut empty = 0;
+        for id in grid.ids() {
+            if sampled.is_empty(grid.range(id), weights) {
+                empty += 1;
+                continue;
+            }
+            let ib = grid.index_box(id);
+            let lo = DVec3::from(ib.lo.map(f64::from)) * spacing;
+            let hi = DVec3::from(ib.hi.map(f64::from)) * spacing;
+            let Some(rect) = camera.footprint(&frame, lo, hi) else {
+                continue;
+            };
+            footprints[id.index()] = Some(rect);
+            #[allow(clippy::cast_possible_wrap, clippy::cast_possible_truncation)]
+            let c = grid.coords(id).map(|x| x as i64);
+            #[allow(clippy::cast_possible_truncation)]
+            let key = match camera.projection {
+                Projection::Orthographic => {
+                    let s = [frame.forward.x, frame.forward.y, frame.forward.z].map(|x| {
+                        if x > 0.0 {
+                            1
+                        } else if x < 0.0 {
+                            -1
+                        } else {
+                            0
+                        }
+                    });
+                    s[0] * c[0] + s[1] * c[1] + s[2] * c[2]
+                }
+                Projection::Perspective => {
+                    let e = [eye_cell.x as i64, eye_cell.y as i64, eye_cell.z as i64];
+                    (c[0] - e[0]).abs() + (c[1] - e[1]).abs() + (c[2] - e[2]).abs()
+                }
+            };
+            keyed.push((key, id));
+        }
+        keyed.sort_unstable();
+        FrameBricks {
+            order: keyed.into_iter().map(|(_, id)| id).collect(),
+            footprints,
+            empty,
+        }
+    }
+
+    /// The visibility key of each brick in `order`, for fragment depth keys.
+    #[must_use]
+    pub fn depth_keys(&self) -> Vec<(BrickId, i64)> {
+        #[allow(clippy::cast_possible_wrap)]
+        self.order
+            .iter()
+            .enumerate()
+            .map(|(i, id)| (*id, i as i64))
+            .collect()
+    }
+}
+
+/// What culling decided for one tile.
+#[derive(Clone, Debug, Default)]
+pub struct CullResult {
+    /// Bricks overlapping the tile that must be rendered, front to back.
+    pub visible: Vec<BrickId>,
+    /// Bricks overlapping the tile that were culled.
+    pub culled: Vec<BrickId>,
+    /// Time spent, in milliseconds.
+    pub cull_ms: f64,
+}
+
+/// Culls the bricks of one tile.
+pub struct Culler<'a> {
+    /// The volume (for rays and, in exact mode, samples).
+    pub volume: &'a Volume,
+    /// Its bricks.
+    pub grid: &'a BrickGrid,
+    /// The mode.
+    pub mode: CullMode,
+    /// Opacity at or above which a pixel hides what lies behind it.
+    pub threshold: f32,
+    /// Current basis weights.
+    pub weights: &'a [f32],
+    /// Precomputed bounds (POF modes).
+    pub bounds: Option<&'a dyn OpacityBound>,
+    /// The ray caster (exact mode renders bricks to learn their real opacity).
+    pub caster: &'a RayCaster<'a>,
+}
+
+impl Culler<'_> {
+    /// Culls the bricks of `bricks` whose footprints overlap `tile`, front to back.
+    ///
+    /// # Panics
+    /// When a POF mode is asked for without bounds (a setup error the frame rejects first).
+    #[must_use]
+    pub fn cull(&self, camera: &Camera, bricks: &FrameBricks, tile: PixelRect) -> CullResult {
+        let start = Instant::now();
+        let frame = camera.frame();
+        let tw = tile.width() as usize;
+        let mut buffer = vec![0f32; tile.area()];
+        let mut out = CullResult::default();
+        let spacing = self.volume.spacing();
+        let unit = self.volume.unit();
+        for &id in &bricks.order {
+            let Some(rect) = bricks.footprints[id.index()].and_then(|r| r.intersect(&tile)) else {
+                continue;
+            };
+            if self.mode == CullMode::None {
+                out.visible.push(id);
+                continue;
+            }
+            let ibox = self.grid.index_box(id);
+            let ray_at = |x: u32, y: u32| {
+                IndexRay::new(
+                    &camera.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
+                    spacing,
+                    unit,
+                )
+            };
+            // Occluded when every pixel whose ray meets the brick is opaque enough; the
+            // cheap test over the whole rectangle settles most bricks.
+            let mut occluded = true;
+            for y in rect.y0..rect.y1 {
+                let row = (y - tile.y0) as usize * tw;
+                for x in rect.x0..rect.x1 {
+                    if buffer[row + (x - tile.x0) as usize] < self.threshold
+                        && ray_at(x, y).span(&ibox).is_some()
+                    {
+                        occluded = false;
+                        break;
+                    }
+                }
+                if !occluded {
+                    break;
+                }
+            }
+            if occluded {
+                out.culled.push(id);
+                continue;
+            }
+            out.visible.push(id);
+            match self.mode {
+                CullMode::None => {}
+                CullMode::Exact => {
+                    let (frag, _) = self.caster.render_box(camera, &frame, rect, &ibox);
+                    let rw = rect.width() as usize;
+                    for (i, p) in frag.iter().enumerate() {
+                        #[allow(clippy::cast_possible_truncation)]
+                        let (x, y) = (rect.x0 + (i % rw) as u32, rect.y0 + (i / rw) as u32);
+                        let b = &mut buffer[(y - tile.y0) as usize * tw + (x - tile.x0) as usize];
+                        *b += (1.0 - *b) * p[3];
+                    }
+                }
+                CullMode::Pof | CullMode::PofSet => {
+                    let bounds = self.bounds.expect("POF culling needs POFs");
+                    let aggressive = self.mode == CullMode::PofSet;
+                    let alpha = self.brick_bound(bounds, camera, &frame, id, aggressive);
+                    if alpha <= 0.0 {
+                        continue;
+                    }
+                    let core = bounds.core_length();
+                    for y in rect.y0..rect.y1 {
+                        let row = (y - tile.y0) as usize * tw;
+                        for x in rect.x0..rect.x1 {
+                            if let Some((t0, t1)) = ray_at(x, y).span(&ibox) {
+                                // Samples start at the eye (t = 0) in perspective views.
+                                if t1 - t0.max(0.0) >= core {
+                                    let b = &mut buffer[row + (x - tile.x0) as usize];
+                                    *b += (1.0 - *b) * alpha;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        out.cull_ms = start.elapsed().as_secs_f64() * 1e3;
+        out
+    }
+
+    fn brick_bound(
+        &self,
+        bounds: &dyn OpacityBound,
+        camera: &Camera,
+        frame: &ViewFrame,
+        id: BrickId,
+        aggressive: bool,
+    ) -> f32 {
+        match camera.projection {
+            Projection::Orthographic => bounds.opacity(id, frame.forward, self.weights, aggressive),
+            Projection::Perspective => {
+                let ib = self.grid.index_box(id);
+                let s = DVec3::from(self.volume.spacing().map(f64::from));
+                let lo = DVec3::from(ib.lo.map(f64::from)) * s;
+                let hi = DVec3::from(ib.hi.map(f64::from)) * s;
+                let centre = (lo + hi) * 0.5;
+                let radius = (hi - lo).length() * 0.5;
+                let to = centre - DVec3::from(camera.position);
+                let dist = to.length();
+                if dist <= radius {
+                    // The eye is inside the brick's bounding sphere: rays come from anywhere.
+                    return bounds.opacity_cone(
+                        id,
+                        frame.forward,
+                        std::f64::consts::PI,
+                        self.weights,
+                        aggressive,
+                    );
+                }
+                bounds.opacity_cone(
+                    id,
+                    to / dist,
+                    (radius / dist).asin(),
+                    self.weights,
+                    aggressive,
+                )
+            }
+        }
+    }
+}

@@ -1,0 +1,150 @@
+use super::range_bound::RangeBound;
+use super::*;
+use crate::frame::{render_frame, render_reference, FrameOptions, RenderJob};
+use crate::render::{families, Image, RenderSettings, TransferFunction};
+use crate::volume::phantom::Phantom;
+
+/// The culling rule: pixels whose reference opacity is below the threshold are identical
+/// (1e-6) and no pixel differs by more than 1 − threshold.
+pub(crate) fn assert_conservative(reference: &Image, culled: &Image, threshold: f32, what: &str) {
+    let mut worst = 0f32;
+    for (i, (r, c)) in reference.pixels().iter().zip(culled.pixels()).enumerate() {
+        let d = (0..4).map(|k| (r[k] - c[k]).abs()).fold(0.0, f32::max);
+        if r[3] < threshold {
+            assert!(
+                d <= 1e-6,
+                "{what}: pixel {i} (ref alpha {}) differs by {d}: {r:?} vs {c:?}",
+                r[3]
+            );
+        }
+        worst = worst.max(d);
+    }
+    assert!(
+        worst <= 1.0 - threshold + 1e-6,
+        "{what}: a pixel differs by {worst}"
+    );
+}
+
+fn job(n: usize, weights: &[f32]) -> RenderJob {
+    let mut tf = families::for_phantom(Phantom::SheppLogan);
+    tf.set_weights(weights.to_vec()).unwrap();
+    RenderJob::new(
+        Phantom::SheppLogan.generate(n),
+        tf,
+        8,
+        RenderSettings::default(),
+    )
+    .unwrap()
+}
+
+fn cam(job: &RenderJob, az: f64, el: f64, p: Projection) -> Camera {
+    Camera::orbit(&job.volume, az, el, 72, 64, p)
+}
+
+#[test]
+fn visibility_order_is_front_to_back_along_every_ray() {
+    let j = job(40, &[1.0, 1.0]);
+    for (az, el, p) in [
+        (0.0, 0.0, Projection::Orthographic),
+        (37.0, -25.0, Projection::Orthographic),
+        (200.0, 60.0, Projection::Perspective),
+    ] {
+        let c = cam(&j, az, el, p);
+        let fb = FrameBricks::new(&j.volume, &j.grid, &j.sampled, &j.tf.weights, &c);
+        let rank: std::collections::HashMap<BrickId, usize> =
+            fb.order.iter().enumerate().map(|(i, b)| (*b, i)).collect();
+        let frame = c.frame();
+        for y in (0..c.height).step_by(5) {
+            for x in (0..c.width).step_by(5) {
+                let ray = IndexRay::new(
+                    &c.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
+                    j.volume.spacing(),
+                    j.volume.unit(),
+                );
+                let mut hits: Vec<(f32, usize)> = fb
+                    .order
+                    .iter()
+                    .filter_map(|b| ray.span(&j.grid.index_box(*b)).map(|s| (s.0, rank[b])))
+                    .collect();
+                hits.sort_by(|a, b| a.0.total_cmp(&b.0));
+                assert!(
+                    hits.windows(2).all(|w| w[0].1 < w[1].1),
+                    "view {az},{el} pixel {x},{y}: {hits:?}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn cull_none_matches_the_reference_within_float_rounding() {
+    let j = job(40, &[1.0, 1.0]);
+    let opts = FrameOptions {
+        cull: CullMode::None,
+        ..FrameOptions::default()
+    };
+    for (az, el, p) in [
+        (0.0, 0.0, Projection::Orthographic),
+        (33.0, 21.0, Projection::Perspective),
+    ] {
+        let c = cam(&j, az, el, p);
+        let (reference, _) = render_reference(&j, &c);
+        let (img, st) = render_frame(&j, None, &c, &opts).unwrap();
+        assert_eq!(st.bricks.culled, 0);
+        // Brick fragments terminate early per brick, the reference per ray: where the
+        // reference is below the termination threshold the two agree to rounding.
+        assert_conservative(&reference, &img, 0.99, "cull none");
+    }
+}
+
+#[test]
+fn range_bound_and_exact_culling_are_conservative_and_cull() {
+    for weights in [[1.0, 1.0], [0.3, 2.0], [3.0, 0.0]] {
+        let j = job(48, &weights);
+        let bound = RangeBound::new(&j.grid, &j.sampled, j.settings.step, j.settings.ert, 4.0);
+        for (az, el, p) in [
+            (0.0, 0.0, Projection::Orthographic),
+            (41.0, 17.0, Projection::Orthographic),
+            (-70.0, 30.0, Projection::Perspective),
+        ] {
+            let c = cam(&j, az, el, p);
+            let (reference, _) = render_reference(&j, &c);
+            let mut culled = Vec::new();
+            for mode in [CullMode::Pof, CullMode::Exact] {
+                let opts = FrameOptions {
+                    cull: mode,
+                    cull_threshold: 0.95,
+                };
+                let (img, st) = render_frame(&j, Some(&bound), &c, &opts).unwrap();
+                assert_conservative(
+                    &reference,
+                    &img,
+                    0.95,
+                    &format!("{mode:?} {weights:?} {az},{el}"),
+                );
+                assert!(st.bricks.culled + st.bricks.visible + st.bricks.empty <= st.bricks.total);
+                culled.push(st.bricks.culled);
+            }
+            eprintln!("weights {weights:?} view {az},{el}: culled by bound/exact {culled:?}");
+            assert!(
+                culled[1] >= culled[0],
+                "exact culls at least as much as the bound: {culled:?}"
+            );
+            if weights[0] > 1.0 {
+                assert!(
+                    culled[1] > 0,
+                    "the skull shell occludes the inside: {culled:?}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn pof_modes_without_pofs_are_an_error() {
+    let j = job(16, &[1.0, 1.0]);
+    let c = cam(&j, 0.0, 0.0, Projection::Orthographic);
+    let e = render_frame(&j, None, &c, &FrameOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("pof build"), "{e}");
+    let _ = TransferFunction::from_json(families::SHEPP_LOGAN_JSON, "x").unwrap();
+}

@@ -1,0 +1,240 @@
+use glam::DVec3;
+
+use super::*;
+use crate::brick::BrickGrid;
+use crate::render::families;
+use crate::volume::phantom::Phantom;
+use crate::volume::{Volume, VoxelData, Voxels};
+
+fn constant_tf(alpha: f32) -> TransferFunction {
+    TransferFunction::from_json(
+        &format!(r#"{{"bases":[{{"name":"c","opacity":[[0,{alpha}],[255,{alpha}]]}}],"color":[[0,1,1,1]]}}"#),
+        "t",
+    )
+    .unwrap()
+}
+
+#[test]
+fn constant_slab_head_on_gives_beer_lambert() {
+    // 20 units thick along z, wide in x and y; viewed down the z axis.
+    let dims = [40, 40, 21];
+    let vol = Volume::new(
+        dims,
+        [1.0; 3],
+        VoxelData::U8(Voxels::owned(vec![100; 40 * 40 * 21])),
+        "slab",
+    )
+    .unwrap();
+    let tf = constant_tf(0.05);
+    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
+    let s = SampledTf::new(&tf, grid.value_range());
+    let settings = RenderSettings {
+        step: 0.5,
+        ert: 2.0,
+        shade: false,
+    };
+    let cls = s.classify(&[1.0], settings.step);
+    let cam = Camera::orbit(&vol, 0.0, 0.0, 64, 64, Projection::Orthographic);
+    let (img, st) = RayCaster::new(&vol, &cls, settings).render(&cam);
+    let tau = -(1.0f32 - 0.05).ln();
+    let expected = 1.0 - (-tau * 20.0).exp();
+    let one_sample = 1.0 - (-tau * settings.step).exp();
+    // Pixels over the slab's interior see exactly the slab thickness.
+    let frame = cam.frame();
+    let (cx, cy, _) = cam.project(&frame, DVec3::new(19.5, 19.5, 10.0)).unwrap();
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let a = img.pixel(cx as u32, cy as u32)[3];
+    assert!(
+        (a - expected).abs() <= one_sample * (1.0 - expected) + 1e-5,
+        "alpha {a}, expected {expected}"
+    );
+    assert!(st.samples > 0 && st.rays > 0);
+}
+
+#[test]
+fn fully_transparent_tf_gives_a_transparent_image() {
+    let vol = Phantom::SheppLogan.generate(32);
+    let tf = constant_tf(0.0);
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let s = SampledTf::new(&tf, grid.value_range());
+    let cls = s.classify(&[1.0], 1.0);
+    let cam = Camera::orbit(&vol, 20.0, 30.0, 48, 40, Projection::Perspective);
+    let (img, _) = RayCaster::new(&vol, &cls, RenderSettings::default()).render(&cam);
+    assert!(img.pixels().iter().all(|p| *p == [0.0; 4]));
+    assert!(grid.ranges().iter().all(|r| s.is_empty(*r, &[1.0])));
+}
+
+/// Renders brick by brick along each ray, carrying the accumulator across bricks.
+fn render_by_bricks(vol: &Volume, grid: &BrickGrid, caster: &RayCaster<'_>, cam: &Camera) -> Image {
+    let frame = cam.frame();
+    let mut img = Image::new(cam.width, cam.height);
+    let w = cam.width;
+    for (i, px) in img.pixels_mut().iter_mut().enumerate() {
+        #[allow(clippy::cast_possible_truncation)]
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        let ray = IndexRay::new(
+            &cam.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
+            vol.spacing(),
+            vol.unit(),
+        );
+        let mut hits: Vec<_> = grid
+            .ids()
+            .filter_map(|b| ray.span(&grid.index_box(b)).map(|s| (s.0, b)))
+            .collect();
+        hits.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let rect = PixelRect {
+            x0: x,
+            y0: y,
+            x1: x + 1,
+            y1: y + 1,
+        };
+        for (_, b) in hits {
+            caster.render_box_into(
+                cam,
+                &frame,
+                rect,
+                &grid.index_box(b),
+                std::slice::from_mut(px),
+            );
+        }
+    }
+    img
+}
+
+#[test]
+fn brick_by_brick_equals_whole_volume_bit_for_bit() {
+    // Anisotropic spacing and a size that is not a multiple of the brick size.
+    let base = Phantom::SheppLogan.generate(37);
+    let VoxelData::U8(v) = base.data() else {
+        unreachable!()
+    };
+    let vol = Volume::new(
+        [37; 3],
+        [1.0, 0.8, 1.3],
+        VoxelData::U8(Voxels::owned(v.as_slice().to_vec())),
+        "aniso",
+    )
+    .unwrap();
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let s = SampledTf::new(&tf, grid.value_range());
+    for (settings, az, el, projection) in [
+        (
+            RenderSettings {
+                step: 1.0,
+                ert: 2.0,
+                shade: false,
+            },
+            0.0,
+            0.0,
+            Projection::Orthographic,
+        ),
+        (
+            RenderSettings {
+                step: 1.0,
+                ert: 2.0,
+                shade: false,
+            },
+            90.0,
+            0.0,
+            Projection::Orthographic,
+        ),
+        (
+            RenderSettings {
+                step: 0.7,
+                ert: 0.99,
+                shade: true,
+            },
+            33.0,
+            21.0,
+            Projection::Orthographic,
+        ),
+        (
+            RenderSettings {
+                step: 0.5,
+                ert: 0.9,
+                shade: false,
+            },
+            -120.0,
+            -40.0,
+            Projection::Perspective,
+        ),
+    ] {
+        let cls = s.classify(&tf.weights, settings.step);
+        let caster = RayCaster::new(&vol, &cls, settings);
+        let cam = Camera::orbit(&vol, az, el, 41, 37, projection);
+        let (whole, _) = caster.render(&cam);
+        let bricks = render_by_bricks(&vol, &grid, &caster, &cam);
+        assert!(whole.mean_alpha() > 0.05, "view {az},{el} shows something");
+        assert_eq!(
+            whole.max_abs_diff(&bricks),
+            Some(0.0),
+            "view {az},{el} {projection:?}"
+        );
+    }
+}
+
+#[test]
+fn ray_spans_of_bricks_partition_the_volume_span() {
+    let vol = Phantom::SheppLogan.generate(50);
+    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let s = SampledTf::new(&tf, grid.value_range());
+    let cls = s.classify(&tf.weights, 1.0);
+    let caster = RayCaster::new(&vol, &cls, RenderSettings::default());
+    let cam = Camera::orbit(&vol, 47.0, 13.0, 31, 29, Projection::Perspective);
+    let frame = cam.frame();
+    for y in 0..29 {
+        for x in 0..31 {
+            let ray = caster.pixel_ray(&cam, &frame, x, y);
+            let Some(whole) = ray.span(&caster.volume_box()) else {
+                continue;
+            };
+            let (k0, k1) = ray_caster::sample_range(whole, 1.0);
+            let mut count = 0;
+            for b in grid.ids() {
+                if let Some(sp) = ray.span(&grid.index_box(b)) {
+                    let (a, c) = ray_caster::sample_range(sp, 1.0);
+                    count += (c - a).max(0);
+                }
+            }
+            assert_eq!(count, k1 - k0, "pixel {x},{y}");
+        }
+    }
+}
+
+#[test]
+fn early_termination_stops_at_the_threshold() {
+    let vol = Phantom::SheppLogan.generate(48);
+    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let s = SampledTf::new(&tf, grid.value_range());
+    let cls = s.classify(&tf.weights, 1.0);
+    let cam = Camera::orbit(&vol, 0.0, 0.0, 32, 32, Projection::Orthographic);
+    let (full, st_full) = RayCaster::new(
+        &vol,
+        &cls,
+        RenderSettings {
+            ert: 2.0,
+            ..RenderSettings::default()
+        },
+    )
+    .render(&cam);
+    let (ert, st_ert) = RayCaster::new(
+        &vol,
+        &cls,
+        RenderSettings {
+            ert: 0.9,
+            ..RenderSettings::default()
+        },
+    )
+    .render(&cam);
+    assert!(st_ert.samples < st_full.samples);
+    for (a, b) in full.pixels().iter().zip(ert.pixels()) {
+        if a[3] < 0.9 {
+            assert_eq!(a, b);
+        } else {
+            assert!(b[3] >= 0.9 && a[3] - b[3] <= 0.1 + 1e-6);
+        }
+    }
+}
