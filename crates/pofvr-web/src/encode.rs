@@ -136,7 +136,7 @@ mod tests {
 
     #[test]
     fn png_round_trips_the_size() {
-        let bytes = png(&vec![7u8; 5 * 3 * 4], 5, 3).unwrap();
+        let bytes = png(&[7u8; 5 * 3 * 4], 5, 3).unwrap();
         let dec = png::Decoder::new(std::io::Cursor::new(bytes));
         let reader = dec.read_info().unwrap();
         assert_eq!((reader.info().width, reader.info().height), (5, 3));

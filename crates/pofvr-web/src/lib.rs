@@ -48,7 +48,7 @@ use pofvr::frame::RenderJob;
 use pofvr::render::{Camera, Projection};
 use serde::Serialize;
 
-use frame_adapter::{CullMode, FrameOptions, FrameStats, Look, Pofs};
+use frame_adapter::{CullMode, FrameOptions, FrameStats, Look, Pofs, SharedJob};
 use params::FrameParams;
 pub use scheduler::SchedulerStats;
 use scheduler::{Refusal, Scheduler};
@@ -74,9 +74,6 @@ pub struct ViewerOptions {
     /// has a request in flight.
     /// > default: 256
     pub max_clients: usize,
-    /// In-process ranks per frame.
-    /// > default: 1
-    pub ranks: usize,
 }
 
 impl Default for ViewerOptions {
@@ -85,14 +82,13 @@ impl Default for ViewerOptions {
             render_slots: std::thread::available_parallelism()
                 .map_or(1, std::num::NonZeroUsize::get),
             max_clients: 256,
-            ranks: 1,
         }
     }
 }
 
 /// The state behind the server: one render job, its optional POFs and the scheduler.
 pub struct Viewer {
-    job: RenderJob,
+    job: SharedJob,
     pofs: Option<Pofs>,
     source: String,
     scheduler: Scheduler,
@@ -114,8 +110,13 @@ impl Viewer {
                 weights: job.tf.weights.clone(),
                 shade: job.settings.shade,
             },
+            // As `pofvr render`: POF culling when POFs are given, otherwise none.
             options: FrameOptions {
-                ranks: options.ranks.max(1),
+                cull: if pofs.is_some() {
+                    CullMode::Pof
+                } else {
+                    CullMode::None
+                },
                 ..FrameOptions::default()
             },
             overlay: false,
@@ -123,7 +124,7 @@ impl Viewer {
             seq: 0,
         };
         Viewer {
-            job,
+            job: SharedJob::new(job),
             pofs,
             source: source.to_string(),
             scheduler: Scheduler::new(options.render_slots, options.max_clients),
@@ -137,6 +138,24 @@ impl Viewer {
         self.scheduler.stats().renders
     }
 
+    /// Holds every render slot until the returned guard is dropped: requests keep arriving
+    /// and superseding each other, but none starts rendering. Lets tests line up a burst
+    /// deterministically, and an operator pause rendering.
+    pub async fn hold_renders(&self) -> RenderHold {
+        RenderHold {
+            _permits: self.scheduler.hold_all().await,
+        }
+    }
+
+    /// The cull modes this viewer can render: the POF modes only with POFs.
+    #[must_use]
+    pub fn cull_modes(&self) -> Vec<CullMode> {
+        frame_adapter::CULL_MODES
+            .into_iter()
+            .filter(|m| self.pofs.is_some() || !m.needs_pofs())
+            .collect()
+    }
+
     /// The scheduler's counters.
     #[must_use]
     pub fn status(&self) -> SchedulerStats {
@@ -146,7 +165,7 @@ impl Viewer {
     /// The camera of a request: the orbit camera with the whole volume fitted, zoomed.
     fn camera(&self, p: &FrameParams) -> Camera {
         let mut cam = Camera::orbit(
-            &self.job.volume,
+            &self.job.read().volume,
             p.azimuth,
             p.elevation,
             p.width,
@@ -254,8 +273,8 @@ struct Info<'a> {
     bases: Vec<BasisInfo<'a>>,
     bricks: BrickInfo,
     cull_modes: Vec<&'static str>,
-    culling_available: bool,
-    pof_file: Option<String>,
+    cull_modes_available: Vec<&'static str>,
+    pofs_loaded: bool,
     defaults: Defaults,
     limits: Limits,
 }
@@ -301,7 +320,7 @@ struct Limits {
 }
 
 async fn info(State(v): State<Arc<Viewer>>) -> Response {
-    let job = &v.job;
+    let job = v.job.read();
     let range = job.grid.value_range();
     let info = Info {
         volume: VolumeInfo {
@@ -326,9 +345,9 @@ async fn info(State(v): State<Arc<Viewer>>) -> Response {
             counts: job.grid.counts(),
             total: job.grid.len(),
         },
-        cull_modes: CullMode::ALL.iter().map(|m| m.name()).collect(),
-        culling_available: frame_adapter::CULLING_AVAILABLE,
-        pof_file: v.pofs.as_ref().map(|p| p.path().display().to_string()),
+        cull_modes: frame_adapter::CULL_MODES.iter().map(|m| m.name()).collect(),
+        cull_modes_available: v.cull_modes().iter().map(|m| m.name()).collect(),
+        pofs_loaded: v.pofs.is_some(),
         defaults: Defaults {
             az: v.defaults.azimuth,
             el: v.defaults.elevation,
@@ -386,7 +405,6 @@ struct FrameReport<'a> {
     width: u32,
     height: u32,
     cull: CullMode,
-    culling_available: bool,
     threshold: f32,
     frame_ms: f64,
     rays: u64,
@@ -412,6 +430,15 @@ async fn frame(
         Ok(p) => p,
         Err(msg) => return text(StatusCode::BAD_REQUEST, msg),
     };
+    if p.options.cull.needs_pofs() && v.pofs.is_none() {
+        return text(
+            StatusCode::BAD_REQUEST,
+            format!(
+                "cull: {} needs precomputed POFs, which this server was started without; use none or exact",
+                p.options.cull.name()
+            ),
+        );
+    }
     let ticket = match v.scheduler.ticket(&p.client) {
         Ok(t) => t,
         Err(_) => {
@@ -463,7 +490,6 @@ async fn frame(
         width: p.width,
         height: p.height,
         cull: p.options.cull,
-        culling_available: frame_adapter::CULLING_AVAILABLE,
         threshold: p.options.cull_threshold,
         frame_ms: stats.frame_ms,
         rays: stats.rays,
@@ -498,17 +524,14 @@ async fn frame(
 /// Renders and encodes one frame: PNG bytes, the frame's figures and the encode time.
 fn render_png(v: &Viewer, p: &FrameParams) -> Result<(Vec<u8>, FrameStats, f64), String> {
     let cam = v.camera(p);
-    let (image, stats) =
-        frame_adapter::render_frame(&v.job, v.pofs.as_ref(), &cam, &p.options, &p.look)
-            .map_err(|e| e.to_string())?;
+    let (image, stats) = v
+        .job
+        .render(v.pofs.as_ref(), &cam, &p.options, &p.look)
+        .map_err(|e| e.to_string())?;
     let t = Instant::now();
     let tinted = if p.overlay {
-        encode::footprints(
-            &v.job.grid,
-            v.job.volume.spacing(),
-            &cam,
-            &stats.culled_bricks,
-        )
+        let job = v.job.read();
+        encode::footprints(&job.grid, job.volume.spacing(), &cam, &stats.culled_bricks)
     } else {
         Vec::new()
     };
@@ -518,6 +541,12 @@ fn render_png(v: &Viewer, p: &FrameParams) -> Result<(Vec<u8>, FrameStats, f64),
         image.height(),
     )?;
     Ok((png, stats, t.elapsed().as_secs_f64() * 1e3))
+}
+
+/// While alive, no frame starts rendering (see [`Viewer::hold_renders`]).
+#[must_use = "rendering resumes as soon as the hold is dropped"]
+pub struct RenderHold {
+    _permits: Option<tokio::sync::OwnedSemaphorePermit>,
 }
 
 /// Where and how to serve.

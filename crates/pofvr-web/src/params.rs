@@ -177,7 +177,10 @@ mod tests {
                 weights: vec![1.0, 1.0],
                 shade: false,
             },
-            options: FrameOptions::default(),
+            options: FrameOptions {
+                cull: CullMode::None,
+                ..FrameOptions::default()
+            },
             overlay: false,
             client: "default".into(),
             seq: 0,

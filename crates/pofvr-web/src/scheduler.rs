@@ -65,6 +65,7 @@ pub(crate) struct Scheduler {
     max_clients: usize,
     permits: Arc<Semaphore>,
     render_slots: usize,
+    requests: AtomicU64,
     renders: AtomicU64,
     superseded: AtomicU64,
 }
@@ -72,6 +73,8 @@ pub(crate) struct Scheduler {
 /// Counters of a scheduler.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct SchedulerStats {
+    /// Frame requests that got a ticket since start.
+    pub requests: u64,
     /// Frames rendered since start.
     pub renders: u64,
     /// Requests dropped because a newer one from the same client came first.
@@ -94,6 +97,7 @@ impl Scheduler {
             max_clients: max_clients.max(1),
             permits: Arc::new(Semaphore::new(render_slots)),
             render_slots,
+            requests: AtomicU64::new(0),
             renders: AtomicU64::new(0),
             superseded: AtomicU64::new(0),
         }
@@ -112,6 +116,7 @@ impl Scheduler {
         }
         let slot = Arc::clone(clients.entry(client.to_string()).or_default());
         let generation = slot.latest.fetch_add(1, Ordering::AcqRel) + 1;
+        self.requests.fetch_add(1, Ordering::Relaxed);
         Ok(Ticket { slot, generation })
     }
 
@@ -135,6 +140,12 @@ impl Scheduler {
         })
     }
 
+    /// Takes every render permit: no frame starts until the returned permit is dropped.
+    pub(crate) async fn hold_all(&self) -> Option<OwnedSemaphorePermit> {
+        let n = u32::try_from(self.render_slots).ok()?;
+        Arc::clone(&self.permits).acquire_many_owned(n).await.ok()
+    }
+
     fn refuse(&self) -> Refusal {
         self.superseded.fetch_add(1, Ordering::Relaxed);
         Refusal::Superseded
@@ -153,6 +164,7 @@ impl Scheduler {
             .unwrap_or_else(PoisonError::into_inner)
             .len();
         SchedulerStats {
+            requests: self.requests.load(Ordering::Relaxed),
             renders: self.renders.load(Ordering::Relaxed),
             superseded: self.superseded.load(Ordering::Relaxed),
             clients,
