@@ -23,7 +23,8 @@
 //! repeated parameter is answered `400` with a plain-text message.
 //!
 //! A request supersedes every older request of the same `client` that has not started
-//! rendering; those are answered `409 Conflict` without rendering. A client renders at most
+//! rendering; those are answered `204 No Content` with an `X-Pofvr-Superseded: 1` header,
+//! without rendering. A client renders at most
 //! one frame at a time, and at most [`ViewerOptions::render_slots`] frames render at once.
 
 #![warn(missing_docs)]
@@ -57,6 +58,8 @@ use scheduler::{Refusal, Scheduler};
 pub const MAX_BODY_BYTES: u64 = 16 * 1024;
 /// Longest query string accepted, in bytes.
 pub const MAX_QUERY_BYTES: usize = 4096;
+/// Name of the response header marking a `204` answer to a superseded request.
+pub const SUPERSEDED_HEADER: &str = "x-pofvr-superseded";
 /// Name of the response header carrying a frame's figures as JSON.
 pub const STATS_HEADER: &str = "x-pofvr-stats";
 
@@ -198,6 +201,8 @@ pub fn router(viewer: Arc<Viewer>) -> Router {
             "/viewer.css",
             get(|| async { page("text/css; charset=utf-8", VIEWER_CSS) }),
         )
+        // Browsers ask for an icon; an empty answer keeps their consoles free of 404s.
+        .route("/favicon.ico", get(|| async { StatusCode::NO_CONTENT }))
         .route("/api/info", get(info))
         .route("/api/status", get(status))
         .route("/api/frame", get(frame))
@@ -309,6 +314,7 @@ struct Defaults {
     h: u32,
     threshold: f32,
     shade: bool,
+    cull: CullMode,
 }
 
 #[derive(Serialize)]
@@ -355,6 +361,7 @@ async fn info(State(v): State<Arc<Viewer>>) -> Response {
             h: v.defaults.height,
             threshold: v.defaults.options.cull_threshold,
             shade: v.defaults.look.shade,
+            cull: v.defaults.options.cull,
         },
         limits: Limits {
             max_side: params::MAX_SIDE,
@@ -451,10 +458,9 @@ async fn frame(
     let grant = match v.scheduler.admit(&ticket).await {
         Ok(g) => g,
         Err(Refusal::Superseded) => {
-            return text(
-                StatusCode::CONFLICT,
-                format!("superseded by a newer request from client {}", p.client),
-            );
+            // 204 rather than an error status: being overtaken is the normal fate of most
+            // requests while a slider moves, and browsers log every 4xx as an error.
+            return (StatusCode::NO_CONTENT, [(SUPERSEDED_HEADER, "1")]).into_response();
         }
         Err(Refusal::TooManyClients) => {
             return text(StatusCode::SERVICE_UNAVAILABLE, "too many clients")

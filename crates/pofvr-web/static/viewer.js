@@ -1,7 +1,7 @@
 // pofvr viewer: asks the server for frames as PNG and shows the figures it sends along.
 //
 // Requests are coalesced to one per animation frame; the server drops any request that a
-// newer one from this client overtakes before it starts (answered 409), so nothing queues.
+// newer one from this client overtakes before it starts (answered 204), so nothing queues.
 // Tests and the benchmark watch `window.pofvr` and the `pofvr:frame` event.
 'use strict';
 
@@ -27,6 +27,8 @@
     requested: 0, // sequence number of the newest request sent
     shown: 0, // sequence number of the frame on screen
     frames: 0, // frames shown so far
+    lowFrames: 0, // of which low-resolution (while dragging)
+    lastLow: null, // the last low-resolution frame shown
     last: null, // {seq, low, stats, shownAt} of the frame on screen
     errors: 0,
     ready: false,
@@ -79,7 +81,7 @@
       setStatus('server unreachable: ' + e.message);
       return;
     }
-    if (res.status === 409) return; // overtaken by a newer request of ours
+    if (res.status === 204) return; // overtaken by a newer request of ours
     if (!res.ok) {
       api.errors++;
       setStatus(`frame: HTTP ${res.status}: ${(await res.text()).trim()}`);
@@ -101,6 +103,10 @@
       api.shown = mySeq;
       api.frames++;
       api.last = { seq: mySeq, low, stats, shownAt, sentAt };
+      if (low) {
+        api.lowFrames++;
+        api.lastLow = api.last;
+      }
       img.dataset.seq = String(mySeq);
       img.dataset.low = low ? '1' : '0';
       setStatus('');
@@ -221,8 +227,11 @@
       const o = document.createElement('option');
       o.value = m;
       o.textContent = m;
+      o.disabled = !info.cull_modes_available.includes(m);
       cull.append(o);
     }
+    state.cull = info.defaults.cull;
+    cull.value = state.cull;
     cull.addEventListener('change', () => {
       state.cull = cull.value;
       requestFrame(false);
@@ -254,10 +263,10 @@
       applySize();
       requestFrame(false);
     });
-    if (!info.culling_available) {
+    if (!info.pofs_loaded) {
       const note = $('culling-note');
       note.hidden = false;
-      note.textContent = 'This build renders every non-empty brick in every mode: culling is not wired in yet.';
+      note.textContent = 'pof and pof-set need precomputed POFs (serve --pof FILE.pof); exact is the slow oracle.';
     }
   }
 
