@@ -193,6 +193,23 @@ mod tests {
     }
 
     #[tokio::test]
+    async fn a_client_renders_one_frame_at_a_time_even_with_free_permits() {
+        let s = Arc::new(Scheduler::new(4, 8));
+        let first = s.ticket("a").unwrap();
+        let grant = s.admit(&first).await.unwrap();
+        let second = s.ticket("a").unwrap();
+        let s2 = Arc::clone(&s);
+        let waiter = tokio::spawn(async move { s2.admit(&second).await.map(|_| ()) });
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        assert!(
+            !waiter.is_finished(),
+            "a's second frame started while its first rendered"
+        );
+        drop(grant);
+        assert_eq!(waiter.await.unwrap(), Ok(()));
+    }
+
+    #[tokio::test]
     async fn clients_do_not_supersede_each_other() {
         let s = Scheduler::new(4, 8);
         let a = s.ticket("a").unwrap();

@@ -7,6 +7,7 @@
 //                      default <repo>/target/browser-artifacts
 //   POFVR_BENCH_VOLUME volume for the slider benchmark, default phantom:head:64
 //   POFVR_BENCH_TF     its family JSON (phantoms have a built-in one)
+//   POFVR_BENCH_ARGS   more `pofvr serve` flags, space-separated (e.g. raw --dims/--dtype)
 //   POFVR_BENCH_REPS   slider moves per cull mode, default 3
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
@@ -71,6 +72,8 @@ before(async () => {
       '--disable-component-update',
       '--no-first-run',
       '--disable-sync',
+      // This machine's network is closed; QUIC probes would only log refusals.
+      '--disable-quic',
     ],
   });
 });
@@ -202,10 +205,11 @@ test('the viewer shows frames and reacts to sliders, culling and dragging', asyn
 test('benchmark: slider change to new frame at 512², with and without culling', async () => {
   const volume = process.env.POFVR_BENCH_VOLUME || 'phantom:head:64';
   const extra = process.env.POFVR_BENCH_TF ? ['--tf', process.env.POFVR_BENCH_TF] : [];
+  extra.push(...(process.env.POFVR_BENCH_ARGS || '').split(' ').filter((a) => a));
   const reps = Number(process.env.POFVR_BENCH_REPS || 3);
   const url = await startServer(volume, extra);
   const { page } = await openViewer(url);
-  const report = { volume, size: 512, reps, browser: chromiumPath, modes: {} };
+  const report = { volume, args: extra, size: 512, reps, browser: chromiumPath, modes: {} };
   for (const mode of ['none', 'exact']) {
     let seq = (await frameNow(page)).seq;
     await page.selectOption('#cull', mode);
