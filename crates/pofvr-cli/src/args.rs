@@ -28,6 +28,8 @@ pub(crate) enum Command {
     Render(Box<RenderArgs>),
     /// Render the built-in head phantom to demo.png; needs no input.
     Demo(DemoArgs),
+    /// Serve the interactive viewer on http://127.0.0.1:8080/.
+    Serve(crate::cmd::serve::ServeArgs),
     /// Measure performance and write a report.
     #[command(subcommand)]
     Bench(BenchCommand),

@@ -33,6 +33,7 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Info(a) => cmd::info::run(&a, &ui),
         args::Command::Render(a) => cmd::render::run(&a, &ui),
         args::Command::Demo(a) => cmd::demo::run(&a, &ui),
+        args::Command::Serve(a) => cmd::serve::run(&a, &ui),
         args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
     }
 }

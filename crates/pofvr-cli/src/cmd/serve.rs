@@ -1,0 +1,60 @@
+//! `pofvr serve`: the interactive browser viewer.
+
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::path::PathBuf;
+
+use anyhow::{anyhow, Result};
+use clap::Args;
+use pofvr::frame::RenderJob;
+use pofvr::render::RenderSettings;
+use pofvr_web::{frame_adapter, ServeConfig, Viewer, ViewerOptions};
+
+use crate::args::{TfArgs, VolumeArgs};
+use crate::progress::Ui;
+use crate::resolve;
+
+/// Flags of `pofvr serve`.
+#[derive(Args, Debug)]
+pub(crate) struct ServeArgs {
+    #[command(flatten)]
+    pub(crate) volume: VolumeArgs,
+    #[command(flatten)]
+    pub(crate) tf: TfArgs,
+    /// Precomputed plenoptic opacity functions for the volume and family.
+    #[arg(long, value_name = "FILE.pof")]
+    pub(crate) pof: Option<PathBuf>,
+    /// TCP port; 0 picks a free one (the address is printed on stdout).
+    /// > default: 8080
+    #[arg(long, default_value_t = 8080)]
+    pub(crate) port: u16,
+    /// Address to listen on. Anything but loopback exposes the viewer to the network.
+    /// > default: 127.0.0.1
+    #[arg(long, default_value_t = IpAddr::V4(Ipv4Addr::LOCALHOST))]
+    pub(crate) bind: IpAddr,
+}
+
+pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
+    let sp = ui.spinner("opening and bricking the volume");
+    let vol = resolve::volume(&a.volume)?;
+    let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
+    let job = RenderJob::new(vol, tf, a.volume.brick, RenderSettings::default())?;
+    let pofs = a
+        .pof
+        .as_deref()
+        .map(|p| frame_adapter::load_pofs(p, &job))
+        .transpose()
+        .map_err(|e| anyhow!(e))?;
+    sp.finish_and_clear();
+    if !a.bind.is_loopback() {
+        eprintln!(
+            "pofvr serve: warning: listening on {}, reachable from other machines",
+            a.bind
+        );
+    }
+    let viewer = Viewer::new(job, pofs, &a.volume.volume, &ViewerOptions::default());
+    pofvr_web::serve_blocking(ServeConfig {
+        viewer,
+        addr: SocketAddr::new(a.bind, a.port),
+    })
+    .map_err(|e| anyhow!("serving on {}:{}: {e}", a.bind, a.port))
+}

@@ -1,0 +1,611 @@
+//! # pofvr-web: the interactive browser viewer
+//!
+//! ## Brief overview
+//!
+//! [`Viewer`] holds one [`pofvr::frame::RenderJob`] (the opened volume, its bricks and the
+//! transfer-function family) and answers HTTP through [`router`]; [`serve`] binds it to a
+//! socket. The page is one HTML file with plain JS and CSS, compiled into the binary.
+//!
+//! ## HTTP interface
+//!
+//! | route | answer |
+//! |---|---|
+//! | `GET /` , `/viewer.js`, `/viewer.css` | the page |
+//! | `GET /api/info` | JSON: volume, basis names and default weights, brick count, cull modes, limits |
+//! | `GET /api/frame?…` | `image/png`; the frame's figures as JSON in the `X-Pofvr-Stats` header |
+//! | `GET /api/status` | JSON: frames rendered, requests superseded, clients, renders running |
+//!
+//! `/api/frame` parameters, all optional: `az`, `el` (degrees; `el` in [-90, 90]), `zoom`
+//! (1 fits the volume, in [0.1, 20]), `w`, `h` (1..=2048), `proj` (`ortho` | `persp`),
+//! `weights` (comma-separated, one per basis, each in [0, 100]), `threshold` (in
+//! [0.01, 1]), `cull` (`none` | `pof` | `pof-set` | `exact`), `shade` and `overlay` (`0` |
+//! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). An invalid, unknown or
+//! repeated parameter is answered `400` with a plain-text message.
+//!
+//! A request supersedes every older request of the same `client` that has not started
+//! rendering; those are answered `204 No Content` with an `X-Pofvr-Superseded: 1` header,
+//! without rendering. A client renders at most
+//! one frame at a time, and at most [`ViewerOptions::render_slots`] frames render at once.
+
+#![warn(missing_docs)]
+
+pub mod encode;
+pub mod frame_adapter;
+pub mod params;
+mod scheduler;
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::extract::{Query, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::Router;
+use glam::DVec3;
+use pofvr::frame::RenderJob;
+use pofvr::render::{Camera, Projection};
+use serde::Serialize;
+
+use frame_adapter::{CullMode, FrameOptions, FrameStats, Look, Pofs, SharedJob};
+use params::FrameParams;
+pub use scheduler::SchedulerStats;
+use scheduler::{Refusal, Scheduler};
+
+/// Largest request body accepted, in bytes; no route reads a body.
+pub const MAX_BODY_BYTES: u64 = 16 * 1024;
+/// Longest query string accepted, in bytes.
+pub const MAX_QUERY_BYTES: usize = 4096;
+/// Name of the response header marking a `204` answer to a superseded request.
+pub const SUPERSEDED_HEADER: &str = "x-pofvr-superseded";
+/// Name of the response header carrying a frame's figures as JSON.
+pub const STATS_HEADER: &str = "x-pofvr-stats";
+
+const INDEX_HTML: &str = include_str!("../static/index.html");
+const VIEWER_JS: &str = include_str!("../static/viewer.js");
+const VIEWER_CSS: &str = include_str!("../static/viewer.css");
+
+/// Tunables of a [`Viewer`].
+#[derive(Clone, Debug)]
+pub struct ViewerOptions {
+    /// Frames that may render at once, across all clients.
+    /// > default: the number of cores
+    pub render_slots: usize,
+    /// Clients remembered at once; beyond it a new client gets `503` while every known one
+    /// has a request in flight.
+    /// > default: 256
+    pub max_clients: usize,
+}
+
+impl Default for ViewerOptions {
+    fn default() -> Self {
+        ViewerOptions {
+            render_slots: std::thread::available_parallelism()
+                .map_or(1, std::num::NonZeroUsize::get),
+            max_clients: 256,
+        }
+    }
+}
+
+/// The state behind the server: one render job, its optional POFs and the scheduler.
+pub struct Viewer {
+    job: SharedJob,
+    pofs: Option<Pofs>,
+    source: String,
+    scheduler: Scheduler,
+    defaults: FrameParams,
+}
+
+impl Viewer {
+    /// A viewer of `job`; `source` names the volume on the page.
+    #[must_use]
+    pub fn new(job: RenderJob, pofs: Option<Pofs>, source: &str, options: &ViewerOptions) -> Self {
+        let defaults = FrameParams {
+            azimuth: 30.0,
+            elevation: 20.0,
+            zoom: 1.0,
+            width: 512,
+            height: 512,
+            projection: Projection::Orthographic,
+            look: Look {
+                weights: job.tf.weights.clone(),
+                shade: job.settings.shade,
+            },
+            // As `pofvr render`: POF culling when POFs are given, otherwise none.
+            options: FrameOptions {
+                cull: if pofs.is_some() {
+                    CullMode::Pof
+                } else {
+                    CullMode::None
+                },
+                ..FrameOptions::default()
+            },
+            overlay: false,
+            client: "default".into(),
+            seq: 0,
+        };
+        Viewer {
+            job: SharedJob::new(job),
+            pofs,
+            source: source.to_string(),
+            scheduler: Scheduler::new(options.render_slots, options.max_clients),
+            defaults,
+        }
+    }
+
+    /// Frames rendered so far (superseded requests are not rendered, so not counted).
+    #[must_use]
+    pub fn renders(&self) -> u64 {
+        self.scheduler.stats().renders
+    }
+
+    /// Holds every render slot until the returned guard is dropped: requests keep arriving
+    /// and superseding each other, but none starts rendering. Lets tests line up a burst
+    /// deterministically, and an operator pause rendering.
+    pub async fn hold_renders(&self) -> RenderHold {
+        RenderHold {
+            _permits: self.scheduler.hold_all().await,
+        }
+    }
+
+    /// The cull modes this viewer can render: the POF modes only with POFs.
+    #[must_use]
+    pub fn cull_modes(&self) -> Vec<CullMode> {
+        frame_adapter::CULL_MODES
+            .into_iter()
+            .filter(|m| self.pofs.is_some() || !m.needs_pofs())
+            .collect()
+    }
+
+    /// The scheduler's counters.
+    #[must_use]
+    pub fn status(&self) -> SchedulerStats {
+        self.scheduler.stats()
+    }
+
+    /// The camera of a request: the orbit camera with the whole volume fitted, zoomed.
+    fn camera(&self, p: &FrameParams) -> Camera {
+        let mut cam = Camera::orbit(
+            &self.job.read().volume,
+            p.azimuth,
+            p.elevation,
+            p.width,
+            p.height,
+            p.projection,
+        );
+        match p.projection {
+            Projection::Orthographic => cam.parallel_scale /= p.zoom,
+            Projection::Perspective => {
+                let focal = DVec3::from(cam.focal_point);
+                cam.position = (focal + (DVec3::from(cam.position) - focal) / p.zoom).to_array();
+            }
+        }
+        cam
+    }
+}
+
+/// The routes, with the size limits and response headers applied.
+pub fn router(viewer: Arc<Viewer>) -> Router {
+    Router::new()
+        .route(
+            "/",
+            get(|| async { page("text/html; charset=utf-8", INDEX_HTML) }),
+        )
+        .route(
+            "/viewer.js",
+            get(|| async { page("text/javascript; charset=utf-8", VIEWER_JS) }),
+        )
+        .route(
+            "/viewer.css",
+            get(|| async { page("text/css; charset=utf-8", VIEWER_CSS) }),
+        )
+        // Browsers ask for an icon; an empty answer keeps their consoles free of 404s.
+        .route("/favicon.ico", get(|| async { StatusCode::NO_CONTENT }))
+        .route("/api/info", get(info))
+        .route("/api/status", get(status))
+        .route("/api/frame", get(frame))
+        .fallback(|| async { (StatusCode::NOT_FOUND, "no such page\n") })
+        .layer(middleware::from_fn(guard))
+        .with_state(viewer)
+}
+
+/// Rejects oversized requests before routing and marks every answer as not to be sniffed
+/// or framed by another site.
+async fn guard(req: Request, next: Next) -> Response {
+    let too_long = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.parse::<u64>().map_or(true, |n| n > MAX_BODY_BYTES));
+    let chunked = req.headers().contains_key(header::TRANSFER_ENCODING);
+    let mut resp = if too_long || chunked {
+        (
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("request bodies are limited to {MAX_BODY_BYTES} bytes\n"),
+        )
+            .into_response()
+    } else if req.uri().query().is_some_and(|q| q.len() > MAX_QUERY_BYTES) {
+        (
+            StatusCode::URI_TOO_LONG,
+            format!("query strings are limited to {MAX_QUERY_BYTES} bytes\n"),
+        )
+            .into_response()
+    } else {
+        next.run(req).await
+    };
+    let h = resp.headers_mut();
+    h.insert(
+        header::X_CONTENT_TYPE_OPTIONS,
+        HeaderValue::from_static("nosniff"),
+    );
+    h.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
+    h.insert(
+        header::CONTENT_SECURITY_POLICY,
+        HeaderValue::from_static(
+            "default-src 'self'; img-src 'self' blob:; style-src 'self'; script-src 'self'",
+        ),
+    );
+    resp
+}
+
+fn page(content_type: &'static str, body: &'static str) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, content_type),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+fn text(status: StatusCode, msg: impl Into<String>) -> Response {
+    let mut m = msg.into();
+    m.push('\n');
+    (
+        status,
+        [(header::CONTENT_TYPE, "text/plain; charset=utf-8")],
+        m,
+    )
+        .into_response()
+}
+
+#[derive(Serialize)]
+struct Info<'a> {
+    volume: VolumeInfo<'a>,
+    bases: Vec<BasisInfo<'a>>,
+    bricks: BrickInfo,
+    cull_modes: Vec<&'static str>,
+    cull_modes_available: Vec<&'static str>,
+    pofs_loaded: bool,
+    defaults: Defaults,
+    limits: Limits,
+}
+
+#[derive(Serialize)]
+struct VolumeInfo<'a> {
+    source: &'a str,
+    dims: [usize; 3],
+    spacing: [f32; 3],
+    data_type: &'static str,
+    value_range: [f32; 2],
+}
+
+#[derive(Serialize)]
+struct BasisInfo<'a> {
+    name: &'a str,
+    weight: f32,
+}
+
+#[derive(Serialize)]
+struct BrickInfo {
+    size: usize,
+    counts: [usize; 3],
+    total: usize,
+}
+
+#[derive(Serialize)]
+struct Defaults {
+    az: f64,
+    el: f64,
+    w: u32,
+    h: u32,
+    threshold: f32,
+    shade: bool,
+    cull: CullMode,
+}
+
+#[derive(Serialize)]
+struct Limits {
+    max_side: u32,
+    max_weight: f32,
+    zoom: [f64; 2],
+    threshold: [f32; 2],
+}
+
+async fn info(State(v): State<Arc<Viewer>>) -> Response {
+    let job = v.job.read();
+    let range = job.grid.value_range();
+    let info = Info {
+        volume: VolumeInfo {
+            source: &v.source,
+            dims: job.volume.dims(),
+            spacing: job.volume.spacing(),
+            data_type: job.volume.data_type().name(),
+            value_range: [range.min, range.max],
+        },
+        bases: job
+            .tf
+            .bases
+            .iter()
+            .zip(&v.defaults.look.weights)
+            .map(|(b, w)| BasisInfo {
+                name: &b.name,
+                weight: *w,
+            })
+            .collect(),
+        bricks: BrickInfo {
+            size: job.grid.brick_size(),
+            counts: job.grid.counts(),
+            total: job.grid.len(),
+        },
+        cull_modes: frame_adapter::CULL_MODES.iter().map(|m| m.name()).collect(),
+        cull_modes_available: v.cull_modes().iter().map(|m| m.name()).collect(),
+        pofs_loaded: v.pofs.is_some(),
+        defaults: Defaults {
+            az: v.defaults.azimuth,
+            el: v.defaults.elevation,
+            w: v.defaults.width,
+            h: v.defaults.height,
+            threshold: v.defaults.options.cull_threshold,
+            shade: v.defaults.look.shade,
+            cull: v.defaults.options.cull,
+        },
+        limits: Limits {
+            max_side: params::MAX_SIDE,
+            max_weight: params::MAX_WEIGHT,
+            zoom: [params::ZOOM_RANGE.0, params::ZOOM_RANGE.1],
+            threshold: [0.01, 1.0],
+        },
+    };
+    json(&info)
+}
+
+async fn status(State(v): State<Arc<Viewer>>) -> Response {
+    json(&v.status())
+}
+
+fn json<T: Serialize>(value: &T) -> Response {
+    match serde_json::to_string(value) {
+        Ok(s) => (
+            [
+                (header::CONTENT_TYPE, "application/json"),
+                (header::CACHE_CONTROL, "no-store"),
+            ],
+            s,
+        )
+            .into_response(),
+        Err(e) => text(StatusCode::INTERNAL_SERVER_ERROR, format!("JSON: {e}")),
+    }
+}
+
+/// Stage times of a frame in milliseconds: the slowest rank's, since ranks run at once.
+#[derive(Serialize)]
+struct Times {
+    cull_ms: f64,
+    raycast_ms: f64,
+    composite_ms: f64,
+    comm_ms: f64,
+    encode_ms: f64,
+    wait_ms: f64,
+    server_ms: f64,
+}
+
+/// What the `X-Pofvr-Stats` header carries.
+#[derive(Serialize)]
+struct FrameReport<'a> {
+    client: &'a str,
+    seq: u64,
+    generation: u64,
+    width: u32,
+    height: u32,
+    cull: CullMode,
+    threshold: f32,
+    frame_ms: f64,
+    rays: u64,
+    samples: u64,
+    samples_per_second: f64,
+    bricks: frame_adapter::BrickCounts,
+    ranks: usize,
+    times: Times,
+}
+
+async fn frame(
+    State(v): State<Arc<Viewer>>,
+    query: Result<Query<Vec<(String, String)>>, axum::extract::rejection::QueryRejection>,
+) -> Response {
+    let received = Instant::now();
+    let Ok(Query(pairs)) = query else {
+        return text(
+            StatusCode::BAD_REQUEST,
+            "the query string is not valid URL encoding",
+        );
+    };
+    let p = match params::parse(&pairs, &v.defaults) {
+        Ok(p) => p,
+        Err(msg) => return text(StatusCode::BAD_REQUEST, msg),
+    };
+    if p.options.cull.needs_pofs() && v.pofs.is_none() {
+        return text(
+            StatusCode::BAD_REQUEST,
+            format!(
+                "cull: {} needs precomputed POFs, which this server was started without; use none or exact",
+                p.options.cull.name()
+            ),
+        );
+    }
+    let ticket = match v.scheduler.ticket(&p.client) {
+        Ok(t) => t,
+        Err(_) => {
+            return text(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "too many clients with frames in flight; try again",
+            )
+        }
+    };
+    let grant = match v.scheduler.admit(&ticket).await {
+        Ok(g) => g,
+        Err(Refusal::Superseded) => {
+            // 204 rather than an error status: being overtaken is the normal fate of most
+            // requests while a slider moves, and browsers log every 4xx as an error.
+            return (StatusCode::NO_CONTENT, [(SUPERSEDED_HEADER, "1")]).into_response();
+        }
+        Err(Refusal::TooManyClients) => {
+            return text(StatusCode::SERVICE_UNAVAILABLE, "too many clients")
+        }
+    };
+    let wait_ms = received.elapsed().as_secs_f64() * 1e3;
+    let generation = ticket.generation();
+    let viewer = Arc::clone(&v);
+    // The grant moves into the blocking task, so a client that hangs up does not free the
+    // render slot before the render it started is finished.
+    let rendered = tokio::task::spawn_blocking(move || {
+        let _grant = grant;
+        viewer.scheduler.count_render();
+        render_png(&viewer, &p).map(|(png, stats, encode_ms)| (png, stats, encode_ms, p))
+    })
+    .await;
+    let (png, stats, encode_ms, p) = match rendered {
+        Ok(Ok(r)) => r,
+        Ok(Err(msg)) => return text(StatusCode::INTERNAL_SERVER_ERROR, msg),
+        Err(e) => {
+            return text(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                format!("render task failed: {e}"),
+            )
+        }
+    };
+    let slowest =
+        |f: fn(&frame_adapter::RankStats) -> f64| stats.ranks.iter().map(f).fold(0.0, f64::max);
+    let report = FrameReport {
+        client: &p.client,
+        seq: p.seq,
+        generation,
+        width: p.width,
+        height: p.height,
+        cull: p.options.cull,
+        threshold: p.options.cull_threshold,
+        frame_ms: stats.frame_ms,
+        rays: stats.rays,
+        samples: stats.samples,
+        samples_per_second: stats.samples_per_second,
+        bricks: stats.bricks,
+        ranks: stats.ranks.len(),
+        times: Times {
+            cull_ms: slowest(|r| r.cull_ms),
+            raycast_ms: slowest(|r| r.raycast_ms),
+            composite_ms: slowest(|r| r.composite_ms),
+            comm_ms: slowest(|r| r.comm_ms),
+            encode_ms,
+            wait_ms,
+            server_ms: received.elapsed().as_secs_f64() * 1e3,
+        },
+    };
+    let mut headers = HeaderMap::new();
+    headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
+    headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    // serde_json escapes control characters and every string here is ASCII, so the JSON
+    // is a valid header value; if that ever breaks, the frame still goes out.
+    if let Ok(h) = serde_json::to_string(&report)
+        .map_err(|_| ())
+        .and_then(|s| HeaderValue::from_str(&s).map_err(|_| ()))
+    {
+        headers.insert(STATS_HEADER, h);
+    }
+    (headers, png).into_response()
+}
+
+/// Renders and encodes one frame: PNG bytes, the frame's figures and the encode time.
+fn render_png(v: &Viewer, p: &FrameParams) -> Result<(Vec<u8>, FrameStats, f64), String> {
+    let cam = v.camera(p);
+    let (image, stats) = v
+        .job
+        .render(v.pofs.as_ref(), &cam, &p.options, &p.look)
+        .map_err(|e| e.to_string())?;
+    let t = Instant::now();
+    let tinted = if p.overlay {
+        let job = v.job.read();
+        encode::footprints(&job.grid, job.volume.spacing(), &cam, &stats.culled_bricks)
+    } else {
+        Vec::new()
+    };
+    let png = encode::png(
+        &encode::rgba8_with_tint(&image, &tinted),
+        image.width(),
+        image.height(),
+    )?;
+    Ok((png, stats, t.elapsed().as_secs_f64() * 1e3))
+}
+
+/// While alive, no frame starts rendering (see [`Viewer::hold_renders`]).
+#[must_use = "rendering resumes as soon as the hold is dropped"]
+pub struct RenderHold {
+    _permits: Option<tokio::sync::OwnedSemaphorePermit>,
+}
+
+/// Where and how to serve.
+pub struct ServeConfig {
+    /// The viewer to serve.
+    pub viewer: Viewer,
+    /// Address to bind; port 0 picks a free one.
+    /// > default (CLI): 127.0.0.1:8080
+    pub addr: SocketAddr,
+}
+
+/// Binds `config.addr`, prints `pofvr serve: listening on http://ADDR/` (the bound address,
+/// so that port 0 can be used) on stdout and serves until Ctrl-C.
+///
+/// # Errors
+/// The I/O error from binding or accepting.
+pub async fn serve(config: ServeConfig) -> std::io::Result<()> {
+    let listener = tokio::net::TcpListener::bind(config.addr).await?;
+    let addr = listener.local_addr()?;
+    {
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "pofvr serve: listening on http://{addr}/")?;
+        out.flush()?;
+    }
+    serve_on(listener, Arc::new(config.viewer)).await
+}
+
+/// Serves `viewer` on an already bound listener until Ctrl-C.
+///
+/// # Errors
+/// The I/O error from accepting.
+pub async fn serve_on(
+    listener: tokio::net::TcpListener,
+    viewer: Arc<Viewer>,
+) -> std::io::Result<()> {
+    axum::serve(listener, router(viewer))
+        .with_graceful_shutdown(async {
+            // Without a signal handler the server simply runs until killed.
+            if tokio::signal::ctrl_c().await.is_err() {
+                std::future::pending::<()>().await;
+            }
+        })
+        .await
+}
+
+/// [`serve`] on a multi-threaded Tokio runtime of its own, for callers without one.
+///
+/// # Errors
+/// The I/O error from starting the runtime, binding or accepting.
+pub fn serve_blocking(config: ServeConfig) -> std::io::Result<()> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?
+        .block_on(serve(config))
+}
