@@ -128,11 +128,11 @@ pub(crate) fn load(header: &Path, src: &DataSource, spec: RawSpec) -> Result<Vol
     let data_name = src.file.display().to_string();
     let n = checked_voxel_count(&header.display().to_string(), spec.dims)?;
     let data_bytes = n as u64 * spec.dtype.size() as u64;
-    let start = src.start + skip_lines(header, src)?;
+    let start = src.start.saturating_add(skip_lines(header, src)?);
     let mut vol = match src.compression {
         Compression::None => {
             let offset = match src.skip {
-                Skip::Bytes(b) => start + b,
+                Skip::Bytes(b) => start.saturating_add(b),
                 Skip::FromEnd => {
                     let len = std::fs::metadata(&src.file)
                         .map_err(|e| VolumeError::io(&src.file, e))?
@@ -142,7 +142,7 @@ pub(crate) fn load(header: &Path, src: &DataSource, spec: RawSpec) -> Result<Vol
                         _ => {
                             return Err(VolumeError::SizeMismatch {
                                 file: data_name,
-                                expected: start + data_bytes,
+                                expected: start.saturating_add(data_bytes),
                                 got: len,
                             })
                         }

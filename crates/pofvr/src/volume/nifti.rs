@@ -179,6 +179,8 @@ fn check_header(path: &Path, h: &::nifti::NiftiHeader) -> Result<Layout, VolumeE
     let vox = if vox_offset.is_finite()
         && vox_offset >= HEADER_BYTES as f32
         && vox_offset.fract() == 0.0
+        // A bound keeps the offset arithmetic far from overflow; no real header comes near.
+        && vox_offset < 1e12
     {
         vox_offset as u64
     } else {

@@ -313,7 +313,10 @@ fn parse_directions(path: &Path, value: &str) -> Result<[f32; 3], VolumeError> {
     let mut out = Vec::new();
     let mut rest = value.trim();
     while !rest.is_empty() {
-        if rest.len() >= 4 && rest[..4].eq_ignore_ascii_case("none") {
+        if rest
+            .get(..4)
+            .is_some_and(|s| s.eq_ignore_ascii_case("none"))
+        {
             return Err(VolumeError::header(
                 path,
                 field,

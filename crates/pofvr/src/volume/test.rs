@@ -918,3 +918,56 @@ fn open_dispatches_by_extension() {
     };
     assert_eq!(as_u8(&Volume::open(&p, Some(&spec)).unwrap()), u8_values());
 }
+
+// ---------------------------------------------------------------- robustness
+
+/// Mutated headers and truncated files give errors or volumes, never a panic.
+#[test]
+fn mutated_files_never_panic() {
+    use rand::{Rng, SeedableRng};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let data = le(&u16_values());
+    write(d, "m.raw", &[&data]);
+    write(d, "m.zraw", &[&zlib(&data)]);
+    let nrrd_fields = "type: uint16\ndimension: 3\nsizes: 5 4 3\nspace directions: (1,0,0) (0,2,0) (0,0,3)\nendian: little\n";
+    let seeds: Vec<(&str, Vec<u8>, usize)> = vec![
+        ("a.nrrd", [nrrd_header(&format!("{nrrd_fields}encoding: raw\nbyte skip: 0\n")), data.clone()].concat(), 0),
+        ("g.nrrd", [nrrd_header(&format!("{nrrd_fields}encoding: gzip\n")), gzip(&data)].concat(), 0),
+        ("d.nhdr", nrrd_header(&format!("{nrrd_fields}encoding: raw\nline skip: 0\ndata file: m.raw")), 0),
+        ("l.mha", [mhd("DimSize = 5 4 3\nElementType = MET_USHORT\nHeaderSize = 0\nElementDataFile = LOCAL"), data.clone()].concat(), 0),
+        ("z.mhd", mhd("DimSize = 5 4 3\nElementSpacing = 1 1 1\nElementType = MET_USHORT\nCompressedData = True\nElementDataFile = m.zraw"), 0),
+        ("n.nii", [Nii::new(512, 16).bytes(), data.clone()].concat(), 352),
+        ("n.nii.gz", gzip(&[Nii::new(512, 16).bytes(), data.clone()].concat()), 0),
+    ];
+    let alphabet = b"0123456789-+.eE:= \n\r()%,#LISTnone\xff\x00";
+    let mut rng = rand::rngs::StdRng::seed_from_u64(2);
+    for (name, seed, header_len) in &seeds {
+        let p = d.join(name);
+        std::fs::write(&p, seed).unwrap();
+        Volume::open(&p, None).unwrap_or_else(|e| panic!("unmutated {name}: {e}"));
+        let region = if *header_len > 0 {
+            *header_len
+        } else {
+            seed.len()
+        };
+        for _ in 0..300 {
+            let mut b = seed.clone();
+            for _ in 0..rng.gen_range(1..4) {
+                let i = rng.gen_range(0..region.min(b.len()));
+                match rng.gen_range(0..4) {
+                    0 => b[i] = alphabet[rng.gen_range(0..alphabet.len())],
+                    1 => b[i] = rng.gen(),
+                    2 => b.insert(i, alphabet[rng.gen_range(0..alphabet.len())]),
+                    _ => b.truncate(i.max(1)),
+                }
+            }
+            std::fs::write(&p, &b).unwrap();
+            if let Err(e) = Volume::open(&p, None) {
+                // Every message names a file; a mutated data-file name is still in `d`.
+                let msg = e.to_string();
+                assert!(msg.contains(&d.display().to_string()), "{msg}");
+            }
+        }
+    }
+}
