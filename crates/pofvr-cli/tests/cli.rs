@@ -274,7 +274,7 @@ fn bad_input_is_a_clear_error_and_leaves_no_output() {
 #[test]
 fn f32_data_with_nan_is_rejected_naming_the_voxel() {
     let dir = tempfile::tempdir().unwrap();
-    let mut v = vec![0.5f32; 27];
+    let mut v = [0.5f32; 27];
     v[13] = f32::NAN;
     let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
     std::fs::write(dir.path().join("nan.raw"), bytes).unwrap();
