@@ -20,11 +20,14 @@
 //!   Z curve ([`distribute::SfcOrder`]).
 //! - [`comm::Communicator`]: messages between ranks; [`comm::LocalCommunicator`] runs the
 //!   ranks as threads.
+//! - [`composite::DirectSend`]: brick fragments sent sparse to the owners of the image tiles
+//!   they overlap, blended in depth order and gathered into the frame.
 
 #![warn(missing_docs)]
 
 pub mod brick;
 pub mod comm;
+pub mod composite;
 pub mod distribute;
 pub mod frame;
 pub mod io;
