@@ -23,6 +23,7 @@ pub(crate) const KIND_FRAGMENT: u8 = 1;
 ///
 /// Before its fragments, every rank tells every owner how many to expect (possibly zero),
 /// so an owner never waits for a fragment that was never sent and reports a lost one.
+/// Owners wait for fragments for at most ¾ of the timeout; the rest is for the gather.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DirectSend {
     timeout: Duration,
@@ -77,6 +78,9 @@ impl DirectSend {
         fragments: &[TileFragment],
     ) -> Result<Option<Image>, CompositeError> {
         let deadline = Deadline::new(self.timeout);
+        // Owners stop waiting for fragments at ¾ of the timeout, before rank 0 gives up on
+        // their tiles, so the owner's precise error is the one that aborts the frame.
+        let fragments_deadline = Deadline::new(self.timeout.saturating_mul(3) / 4);
         let (me, n) = (comm.rank(), comm.size());
         let my_tile = match layout.tile_of(me) {
             Some(t) if layout.len() == n => t,
@@ -126,7 +130,7 @@ impl DirectSend {
             }
         }
 
-        let pixels = receive_and_blend(comm, layout, my_tile, mine, deadline)?;
+        let pixels = receive_and_blend(comm, layout, my_tile, mine, fragments_deadline)?;
 
         // Gather the tiles on rank 0.
         let bytes: Vec<u8> = pixels

@@ -569,3 +569,76 @@ fn a_rank_with_a_bad_fragment_does_not_leave_peers_waiting() {
         );
     }
 }
+
+/// Forwards to a real communicator but loses every fragment count it sends.
+struct LosesCounts<'a>(&'a LocalCommunicator);
+
+impl Communicator for LosesCounts<'_> {
+    fn rank(&self) -> Rank {
+        self.0.rank()
+    }
+    fn size(&self) -> usize {
+        self.0.size()
+    }
+    fn send(&self, to: Rank, tag: u32, bytes: Vec<u8>) -> Result<(), CommError> {
+        if tag == TAG_FRAGMENTS && bytes.first() == Some(&super::direct::KIND_COUNT) {
+            return Ok(());
+        }
+        self.0.send(to, tag, bytes)
+    }
+    fn recv(
+        &self,
+        from: Option<Rank>,
+        tag: u32,
+        timeout: Duration,
+    ) -> Result<(Rank, Vec<u8>), CommError> {
+        self.0.recv(from, tag, timeout)
+    }
+    fn abort(&self, reason: &str) {
+        self.0.abort(reason);
+    }
+    fn bytes_sent(&self) -> u64 {
+        self.0.bytes_sent()
+    }
+}
+
+#[test]
+fn missing_fragment_count_is_reported_within_the_timeout() {
+    let layout = TileLayout::new(32, 32, rect(0, 0, 32, 32), 3).unwrap();
+    let timeout = Duration::from_millis(200);
+    let start = Instant::now();
+    let out = LocalCommunicator::run(3, |comm| {
+        let compositor = DirectSend::new(timeout);
+        if comm.rank() == Rank(2) {
+            compositor.composite(&LosesCounts(comm), &layout, Vec::new())
+        } else {
+            compositor.composite(comm, &layout, Vec::new())
+        }
+    });
+    assert!(
+        start.elapsed() < timeout + Duration::from_secs(5),
+        "took {:?}",
+        start.elapsed()
+    );
+    // Owners 0 and 1 both wait for rank 2's count; whichever times out first reports it
+    // and aborts the other.
+    let mut reported = 0;
+    for (r, result) in out[..2].iter().enumerate() {
+        match result {
+            Err(
+                e @ CompositeError::CountMissing {
+                    tile,
+                    rank,
+                    from: Rank(2),
+                },
+            ) => {
+                assert_eq!((tile.index(), rank.index()), (r, r));
+                assert!(e.to_string().contains("from rank 2"), "{e}");
+                reported += 1;
+            }
+            Err(CompositeError::Comm(CommError::Aborted { .. })) => {}
+            other => panic!("rank {r}: {other:?}"),
+        }
+    }
+    assert!(reported >= 1, "{out:?}");
+}
