@@ -24,6 +24,30 @@ pub(crate) const KIND_FRAGMENT: u8 = 1;
 /// Before its fragments, every rank tells every owner how many to expect (possibly zero),
 /// so an owner never waits for a fragment that was never sent and reports a lost one.
 /// Owners wait for fragments for at most ¾ of the timeout; the rest is for the gather.
+///
+/// # Examples
+/// ```
+/// use std::time::Duration;
+/// use pofvr::brick::BrickId;
+/// use pofvr::comm::{Communicator, LocalCommunicator};
+/// use pofvr::composite::{composite_local, Compositor, DirectSend, TileFragment, TileLayout};
+/// use pofvr::render::PixelRect;
+///
+/// let rect = |x0, y0, x1, y1| PixelRect { x0, y0, x1, y1 };
+/// let fragments = vec![
+///     TileFragment { brick: BrickId(0), depth_key: 1, rect: rect(2, 2, 10, 6), pixels: vec![[0.2, 0.0, 0.0, 0.4]; 32] },
+///     TileFragment { brick: BrickId(1), depth_key: 0, rect: rect(6, 4, 12, 8), pixels: vec![[0.0, 0.5, 0.0, 0.5]; 24] },
+/// ];
+/// let layout = TileLayout::new(16, 10, rect(2, 2, 12, 8), 3).unwrap();
+/// let frames = LocalCommunicator::run(3, |comm| {
+///     // Each rank holds the fragments of the bricks it rendered.
+///     let mine = fragments.iter().skip(comm.rank().index()).step_by(3).cloned().collect();
+///     DirectSend::new(Duration::from_secs(10)).composite(comm, &layout, mine).unwrap()
+/// });
+/// let reference = composite_local(&fragments, 16, 10).unwrap();
+/// assert_eq!(frames[0].as_ref(), Some(&reference));
+/// assert!(frames[1].is_none() && frames[2].is_none());
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DirectSend {
     timeout: Duration,
