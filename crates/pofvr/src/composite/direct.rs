@@ -24,6 +24,30 @@ pub(crate) const KIND_FRAGMENT: u8 = 1;
 /// Before its fragments, every rank tells every owner how many to expect (possibly zero),
 /// so an owner never waits for a fragment that was never sent and reports a lost one.
 /// Owners wait for fragments for at most ¾ of the timeout; the rest is for the gather.
+///
+/// # Examples
+/// ```
+/// use std::time::Duration;
+/// use pofvr::brick::BrickId;
+/// use pofvr::comm::{Communicator, LocalCommunicator};
+/// use pofvr::composite::{composite_local, Compositor, DirectSend, TileFragment, TileLayout};
+/// use pofvr::render::PixelRect;
+///
+/// let rect = |x0, y0, x1, y1| PixelRect { x0, y0, x1, y1 };
+/// let fragments = vec![
+///     TileFragment { brick: BrickId(0), depth_key: 1, rect: rect(2, 2, 10, 6), pixels: vec![[0.2, 0.0, 0.0, 0.4]; 32] },
+///     TileFragment { brick: BrickId(1), depth_key: 0, rect: rect(6, 4, 12, 8), pixels: vec![[0.0, 0.5, 0.0, 0.5]; 24] },
+/// ];
+/// let layout = TileLayout::new(16, 10, rect(2, 2, 12, 8), 3).unwrap();
+/// let frames = LocalCommunicator::run(3, |comm| {
+///     // Each rank holds the fragments of the bricks it rendered.
+///     let mine = fragments.iter().skip(comm.rank().index()).step_by(3).cloned().collect();
+///     DirectSend::new(Duration::from_secs(10)).composite(comm, &layout, mine).unwrap()
+/// });
+/// let reference = composite_local(&fragments, 16, 10).unwrap();
+/// assert_eq!(frames[0].as_ref(), Some(&reference));
+/// assert!(frames[1].is_none() && frames[2].is_none());
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DirectSend {
     timeout: Duration,
@@ -186,6 +210,9 @@ fn rank_at(i: usize) -> Rank {
 
 /// Receives this owner's fragments, checking each sender against its announced count,
 /// and blends them with its own in depth order.
+///
+/// Senders are read one at a time, each stream by name: a fast peer may already be sending
+/// the next frame's count, which must stay queued rather than be taken for this frame's.
 fn receive_and_blend(
     comm: &dyn Communicator,
     layout: &TileLayout,
@@ -193,96 +220,77 @@ fn receive_and_blend(
     mine: Vec<SparseTile>,
     deadline: Deadline,
 ) -> Result<Vec<[f32; 4]>, CompositeError> {
-    let (me, n) = (comm.rank(), comm.size());
+    let me = comm.rank();
     let rect = layout.tile(tile).unwrap_or(crate::render::PixelRect {
         x0: 0,
         y0: 0,
         x1: 0,
         y1: 0,
     });
-    let mut expected: Vec<Option<usize>> = vec![None; n];
-    let mut got = vec![0usize; n];
-    expected[me.index()] = Some(mine.len());
-    got[me.index()] = mine.len();
     let mut received = mine;
-    let done = |expected: &[Option<usize>], got: &[usize]| {
-        expected.iter().zip(got).all(|(e, g)| *e == Some(*g))
-    };
-    while !done(&expected, &got) {
-        let (from, bytes) = match comm.recv(None, TAG_FRAGMENTS, deadline.left()) {
-            Ok(m) => m,
-            Err(CommError::Timeout { .. }) => {
-                let short = (0..n).find(|&s| expected[s] != Some(got[s])).unwrap_or(0);
-                return Err(match expected[short] {
-                    None => CompositeError::CountMissing {
-                        tile,
-                        rank: me,
-                        from: rank_at(short),
-                    },
-                    Some(e) => CompositeError::FragmentCount {
-                        tile,
-                        rank: me,
-                        from: rank_at(short),
-                        expected: e,
-                        got: got[short],
-                    },
-                });
-            }
-            Err(e) => return Err(e.into()),
-        };
-        let s = from.index();
+    for from in (0..comm.size()).map(rank_at).filter(|&r| r != me) {
         let protocol = |what: String| CompositeError::Protocol {
             tile,
             rank: me,
             from,
             what,
         };
-        match (bytes.first(), expected.get(s).copied().flatten()) {
-            (Some(&KIND_COUNT), None) => {
-                let count: [u8; 4] = bytes[1..].try_into().map_err(|_| {
-                    protocol(format!(
+        let count = match comm.recv(Some(from), TAG_FRAGMENTS, deadline.left()) {
+            Ok((_, bytes)) => match (
+                bytes.first(),
+                <[u8; 4]>::try_from(bytes.get(1..).unwrap_or(&[])),
+            ) {
+                (Some(&KIND_COUNT), Ok(count)) => u32::from_le_bytes(count) as usize,
+                (Some(&KIND_COUNT), Err(_)) => {
+                    return Err(protocol(format!(
                         "got a count message of {} bytes, expected 5",
                         bytes.len()
-                    ))
-                })?;
-                expected[s] = Some(u32::from_le_bytes(count) as usize);
+                    )));
+                }
+                (kind, _) => {
+                    return Err(protocol(format!(
+                        "got message kind {kind:?} first, expected the count (0)"
+                    )));
+                }
+            },
+            Err(CommError::Timeout { .. }) => {
+                return Err(CompositeError::CountMissing {
+                    tile,
+                    rank: me,
+                    from,
+                })
             }
-            (Some(&KIND_COUNT), Some(e)) => {
-                return Err(protocol(format!(
-                    "got a second fragment count after announcing {e}"
-                )));
-            }
-            (Some(&KIND_FRAGMENT), Some(e)) => {
-                if got[s] == e {
+            Err(e) => return Err(e.into()),
+        };
+        for got in 0..count {
+            let bytes = match comm.recv(Some(from), TAG_FRAGMENTS, deadline.left()) {
+                Ok((_, bytes)) => bytes,
+                Err(CommError::Timeout { .. }) => {
                     return Err(CompositeError::FragmentCount {
                         tile,
                         rank: me,
                         from,
-                        expected: e,
-                        got: e + 1,
+                        expected: count,
+                        got,
                     });
                 }
-                let sparse =
-                    SparseTile::decode(&bytes[1..]).map_err(|err| protocol(err.to_string()))?;
-                if sparse.rect().intersect(&rect) != Some(sparse.rect()) {
-                    return Err(protocol(format!(
-                        "got a fragment over {:?}, expected one inside {rect:?}",
-                        sparse.rect()
-                    )));
-                }
-                got[s] += 1;
-                received.push(sparse);
-            }
-            (Some(&KIND_FRAGMENT), None) => {
-                return Err(protocol(
-                    "got a fragment before the fragment count".to_owned(),
-                ));
-            }
-            (kind, _) => {
+                Err(e) => return Err(e.into()),
+            };
+            if bytes.first() != Some(&KIND_FRAGMENT) {
                 return Err(protocol(format!(
-                    "got message kind {kind:?}, expected 0 (count) or 1 (fragment)"
-                )))
+                    "got message kind {:?} after {got} of {count} fragments, expected a fragment (1)",
+                    bytes.first()
+                )));
             }
+            let sparse =
+                SparseTile::decode(&bytes[1..]).map_err(|err| protocol(err.to_string()))?;
+            if sparse.rect().intersect(&rect) != Some(sparse.rect()) {
+                return Err(protocol(format!(
+                    "got a fragment over {:?}, expected one inside {rect:?}",
+                    sparse.rect()
+                )));
+            }
+            received.push(sparse);
         }
     }
 

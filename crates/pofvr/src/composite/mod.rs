@@ -277,7 +277,8 @@ impl TileLayout {
         let mut best = 1;
         let mut d = 1;
         while d * d <= tiles {
-            if tiles.is_multiple_of(d) {
+            // Written out rather than `is_multiple_of`, which is newer than the MSRV.
+            if (tiles / d) * d == tiles {
                 for cols in [d, tiles / d] {
                     let (a, b) = (score(cols), score(best));
                     if (!a.0 && b.0) || (a.0 == b.0 && a.1 < b.1) {

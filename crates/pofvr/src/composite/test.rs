@@ -365,12 +365,13 @@ fn direct_send_matches_composite_local_at_1_2_3_4_7_32_ranks() {
 
 #[test]
 fn direct_send_is_repeatable_on_one_communicator() {
+    // Ranks other than 0 finish a frame as soon as their tile is sent, so they start the
+    // next frame while owners still read this one: the streams must not mix.
     let mut rng = seeded_rng();
     let bounds = rect(0, 0, 40, 30);
-    let frames = [
-        random_fragments(&mut rng, 20, bounds),
-        random_fragments(&mut rng, 25, bounds),
-    ];
+    let frames: Vec<Vec<TileFragment>> = (0..12)
+        .map(|i| random_fragments(&mut rng, 10 + i, bounds))
+        .collect();
     let layout = TileLayout::new(40, 30, bounds, 3).unwrap();
     let out = LocalCommunicator::run(3, |comm| {
         frames

@@ -236,3 +236,39 @@ fn assignment_answers_unknown_ids_and_ranks_without_panicking() {
     assert!(a.of(Rank(4)).is_empty());
     assert_eq!(a.len(), 6);
 }
+
+#[test]
+fn a_compact_region_is_spread_evenly_over_ranks() {
+    // The paper's argument for SFC distribution: the visible bricks of a view form compact
+    // regions, and dealing along a curve gives each rank about the same share of them.
+    let counts = [24, 20, 28];
+    let inside = |c: [usize; 3]| {
+        let d: f64 = (0..3).map(|a| (c[a] as f64 - 10.0).powi(2)).sum();
+        d < 64.0
+    };
+    for curve in [Curve::Hilbert, Curve::Z] {
+        for ranks in [2, 8, 32] {
+            let a = BrickAssignment::new(counts, curve, ranks).unwrap();
+            let per_rank: Vec<usize> = (0..ranks)
+                .map(|r| {
+                    a.of(Rank(u32::try_from(r).unwrap()))
+                        .iter()
+                        .filter(|b| {
+                            let i = b.index();
+                            inside([i % 24, (i / 24) % 20, i / 480])
+                        })
+                        .count()
+                })
+                .collect();
+            let total: usize = per_rank.iter().sum();
+            let max = *per_rank.iter().max().unwrap() as f64;
+            let balance = max / (total as f64 / ranks as f64);
+            // The target for Hilbert; Z jumps more, so cuts a region into more runs.
+            let limit = if curve == Curve::Hilbert { 1.15 } else { 1.25 };
+            assert!(
+                balance <= limit,
+                "{curve} at {ranks} ranks: {per_rank:?} (max/mean {balance:.3})"
+            );
+        }
+    }
+}
