@@ -193,6 +193,9 @@ pub(crate) struct DemoArgs {
 
 #[derive(Subcommand, Debug)]
 pub(crate) enum BenchCommand {
+    /// Culling: frame time culled vs not, culling share of the frame, culled fractions per
+    /// mode, per-rank load balance at 2, 8 and 32 ranks.
+    Cull(BenchCullArgs),
     /// Samples per second per core of the ray caster, with and without early termination,
     /// axis-aligned and oblique, on the phantom and on given volumes.
     Render(BenchRenderArgs),
@@ -220,5 +223,34 @@ pub(crate) struct BenchRenderArgs {
     /// Report file (JSON); a table is printed too.
     /// > default: bench-render.json
     #[arg(long, default_value = "bench-render.json")]
+    pub(crate) out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct BenchCullArgs {
+    /// Volume (default: the largest catalogued real volume when ../shared/data exists,
+    /// otherwise the 256³ head phantom).
+    pub(crate) volume: Option<String>,
+    /// Transfer-function family (default: the phantom's, or tfs/mri-brain.json).
+    #[arg(long, value_name = "TF.json")]
+    pub(crate) tf: Option<PathBuf>,
+    /// Precomputed POFs for the pof and pof-set modes (built on the fly when absent).
+    #[arg(long, value_name = "FILE.pof")]
+    pub(crate) pof: Option<PathBuf>,
+    /// View (azimuth, elevation in degrees).
+    /// > default: 0,0
+    #[arg(long, default_value = "0,0", allow_hyphen_values = true)]
+    pub(crate) view: String,
+    /// Image size.
+    /// > default: 512x512
+    #[arg(long, default_value = "512x512")]
+    pub(crate) size: String,
+    /// Repetitions per case (the median is reported).
+    /// > default: 3
+    #[arg(long, default_value_t = 3)]
+    pub(crate) reps: usize,
+    /// Report file (JSON).
+    /// > default: bench-cull.json
+    #[arg(long, default_value = "bench-cull.json")]
     pub(crate) out: PathBuf,
 }

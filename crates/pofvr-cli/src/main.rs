@@ -35,5 +35,6 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Demo(a) => cmd::demo::run(&a, &ui),
         args::Command::Serve(a) => cmd::serve::run(&a, &ui),
         args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
+        args::Command::Bench(args::BenchCommand::Cull(a)) => cmd::bench::cull(&a, &ui),
     }
 }

@@ -2,14 +2,17 @@
 
 use std::time::Instant;
 
+use std::path::{Path, PathBuf};
+
 use anyhow::Result;
-use pofvr::frame::RenderJob;
+use pofvr::cull::{CullMode, OpacityBound};
+use pofvr::frame::{render_frame, FrameOptions, RenderJob};
 use pofvr::render::{families, Camera, Projection, RayCaster, RenderSettings};
 use pofvr::volume::phantom::Phantom;
 use pofvr::volume::Volume;
 use serde::Serialize;
 
-use crate::args::BenchRenderArgs;
+use crate::args::{BenchCullArgs, BenchRenderArgs};
 use crate::progress::Ui;
 use crate::resolve;
 
@@ -102,6 +105,176 @@ pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
         );
     }
     let report = serde_json::json!({ "threads": threads, "image": [w, h], "cases": cases });
+    pofvr::io::write_bytes_atomic(&a.out, serde_json::to_string_pretty(&report)?.as_bytes())?;
+    println!("report: {}", a.out.display());
+    Ok(())
+}
+
+/// The largest real volume of the catalogue and its family, when the catalogue is here.
+fn default_real_volume() -> Option<(String, PathBuf)> {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/ch2better_mri/ch2better_mri.nhdr");
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/mri-brain.json");
+    (data.exists() && tf.exists()).then(|| (data.display().to_string(), tf))
+}
+
+#[derive(Serialize)]
+struct CullCase {
+    mode: &'static str,
+    ranks: usize,
+    median_frame_ms: f64,
+    max_cull_ms: f64,
+    cull_share_of_frame: f64,
+    culled: usize,
+    non_empty: usize,
+    culled_fraction: f64,
+    samples: u64,
+    load_balance_max_over_mean_samples: f64,
+}
+
+fn cull_case(
+    job: &RenderJob,
+    bounds: Option<&dyn OpacityBound>,
+    cam: &Camera,
+    mode: CullMode,
+    ranks: usize,
+    reps: usize,
+) -> Result<CullCase> {
+    let opts = FrameOptions {
+        cull: mode,
+        ranks,
+        ..FrameOptions::default()
+    };
+    let mut runs = Vec::new();
+    for _ in 0..reps.max(1) {
+        let (_, st) = render_frame(job, bounds, cam, &opts)?;
+        runs.push(st);
+    }
+    runs.sort_by(|a, b| a.frame_ms.total_cmp(&b.frame_ms));
+    let st = &runs[runs.len() / 2];
+    let max_cull = st.ranks.iter().map(|r| r.cull_ms).fold(0.0, f64::max);
+    #[allow(clippy::cast_precision_loss)]
+    let mean =
+        st.ranks.iter().map(|r| r.samples as f64).sum::<f64>() / st.ranks.len().max(1) as f64;
+    #[allow(clippy::cast_precision_loss)]
+    let max = st.ranks.iter().map(|r| r.samples).max().unwrap_or(0) as f64;
+    #[allow(clippy::cast_precision_loss)]
+    Ok(CullCase {
+        mode: mode.name(),
+        ranks,
+        median_frame_ms: st.frame_ms,
+        max_cull_ms: max_cull,
+        cull_share_of_frame: max_cull / st.frame_ms,
+        culled: st.bricks.culled,
+        non_empty: st.bricks.non_empty,
+        culled_fraction: st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64,
+        samples: st.samples,
+        load_balance_max_over_mean_samples: if mean > 0.0 { max / mean } else { 1.0 },
+    })
+}
+
+pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
+    let (spec, tf_path) = match (&a.volume, default_real_volume()) {
+        (Some(v), _) => (v.clone(), a.tf.clone()),
+        (None, Some((v, tf))) => (v, Some(a.tf.clone().unwrap_or(tf))),
+        (None, None) => ("phantom:head:256".to_string(), a.tf.clone()),
+    };
+    let sp = ui.spinner("opening and bricking the volume");
+    let vol_args = crate::args::VolumeArgs {
+        volume: spec.clone(),
+        dims: None,
+        dtype: None,
+        endian: "little".into(),
+        spacing: None,
+        header_bytes: 0,
+        brick: 16,
+    };
+    let vol = resolve::volume(&vol_args)?;
+    let tf_args = crate::args::TfArgs {
+        tf: tf_path,
+        weights: None,
+    };
+    let tf = resolve::required_tf(&tf_args, &spec)?;
+    let job = RenderJob::new(vol, tf, 16, RenderSettings::default())?;
+    sp.finish_and_clear();
+    let view = resolve::parse_list::<f64>("--view", &a.view, Some(2))?;
+    let (w, h) = resolve::size(&a.size)?;
+    let cam = Camera::orbit(
+        &job.volume,
+        view[0],
+        view[1],
+        w,
+        h,
+        Projection::Orthographic,
+    );
+    let bounds: Option<&dyn OpacityBound> = None;
+    if a.pof.is_some() {
+        anyhow::bail!("--pof: this build has no POF support yet");
+    }
+    let plan: Vec<(CullMode, usize)> = vec![
+        (CullMode::None, 1),
+        (CullMode::Pof, 1),
+        (CullMode::PofSet, 1),
+        (CullMode::Exact, 1),
+        (CullMode::None, 2),
+        (CullMode::Pof, 2),
+        (CullMode::None, 8),
+        (CullMode::Pof, 8),
+        (CullMode::None, 32),
+        (CullMode::Pof, 32),
+    ];
+    let pb = ui.bar(plan.len() as u64, "bench cull");
+    let mut cases = Vec::new();
+    for (mode, ranks) in plan {
+        if mode.needs_pofs() && bounds.is_none() {
+            eprintln!("skipping --cull {} at {ranks} ranks: no POFs", mode.name());
+            pb.inc(1);
+            continue;
+        }
+        let reps = if mode == CullMode::Exact { 1 } else { a.reps };
+        cases.push(cull_case(&job, bounds, &cam, mode, ranks, reps)?);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let find = |m: &str, r: usize| cases.iter().find(|c| c.mode == m && c.ranks == r);
+    let speedup = match (find("none", 1), find("pof", 1)) {
+        (Some(none1), Some(pof1)) => Some(none1.median_frame_ms / pof1.median_frame_ms),
+        _ => None,
+    };
+    println!(
+        "volume {spec}, {w}x{h}, view {},{}; {} threads",
+        view[0],
+        view[1],
+        rayon::current_num_threads()
+    );
+    println!(
+        "{:<8} {:>5} {:>10} {:>9} {:>8} {:>8} {:>9} {:>8}",
+        "mode", "ranks", "frame ms", "cull ms", "cull %", "culled", "culled %", "balance"
+    );
+    for c in &cases {
+        println!(
+            "{:<8} {:>5} {:>10.1} {:>9.2} {:>8.2} {:>8} {:>9.1} {:>8.3}",
+            c.mode,
+            c.ranks,
+            c.median_frame_ms,
+            c.max_cull_ms,
+            100.0 * c.cull_share_of_frame,
+            c.culled,
+            100.0 * c.culled_fraction,
+            c.load_balance_max_over_mean_samples
+        );
+    }
+    if let Some(x) = speedup {
+        println!("frame time none/pof at 1 rank: {x:.2}x");
+    }
+    let report = serde_json::json!({
+        "volume": spec,
+        "image": [w, h],
+        "view": view,
+        "threads": rayon::current_num_threads(),
+        "speedup_pof_vs_none": speedup,
+        "cases": cases,
+    });
     pofvr::io::write_bytes_atomic(&a.out, serde_json::to_string_pretty(&report)?.as_bytes())?;
     println!("report: {}", a.out.display());
     Ok(())
