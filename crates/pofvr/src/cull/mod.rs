@@ -229,8 +229,7 @@ impl Culler<'_> {
         let tw = tile.width() as usize;
         let mut buffer = vec![0f32; tile.area()];
         let mut out = CullResult::default();
-        let spacing = self.volume.spacing();
-        let unit = self.volume.unit();
+        let spans = PixelSpans::new(camera, &frame, self.volume);
         for &id in &bricks.order {
             let Some(rect) = bricks.footprints[id.index()].and_then(|r| r.intersect(&tile)) else {
                 continue;
@@ -240,13 +239,6 @@ impl Culler<'_> {
                 continue;
             }
             let ibox = self.grid.index_box(id);
-            let ray_at = |x: u32, y: u32| {
-                IndexRay::new(
-                    &camera.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
-                    spacing,
-                    unit,
-                )
-            };
             // Occluded when every pixel whose ray meets the brick is opaque enough; the
             // cheap test over the whole rectangle settles most bricks.
             let mut occluded = true;
@@ -254,7 +246,7 @@ impl Culler<'_> {
                 let row = (y - tile.y0) as usize * tw;
                 for x in rect.x0..rect.x1 {
                     if buffer[row + (x - tile.x0) as usize] < self.threshold
-                        && ray_at(x, y).span(&ibox).is_some()
+                        && spans.hits(x, y, &ibox)
                     {
                         occluded = false;
                         break;
@@ -292,12 +284,9 @@ impl Culler<'_> {
                     for y in rect.y0..rect.y1 {
                         let row = (y - tile.y0) as usize * tw;
                         for x in rect.x0..rect.x1 {
-                            if let Some((t0, t1)) = ray_at(x, y).span(&ibox) {
-                                // Samples start at the eye (t = 0) in perspective views.
-                                if t1 - t0.max(0.0) >= core {
-                                    let b = &mut buffer[row + (x - tile.x0) as usize];
-                                    *b += (1.0 - *b) * alpha;
-                                }
+                            if spans.in_core(x, y, &ibox, core) {
+                                let b = &mut buffer[row + (x - tile.x0) as usize];
+                                *b += (1.0 - *b) * alpha;
                             }
                         }
                     }
@@ -346,5 +335,112 @@ impl Culler<'_> {
                 )
             }
         }
+    }
+}
+
+/// Slack, in `t` units, by which span tests err on the safe side: a pixel counts as meeting
+/// a brick when its ray misses by less, and as in the core only when its span exceeds the
+/// core length by more. Both only make culling harder, never wrong.
+const SPAN_SLACK: f64 = 1e-3;
+
+/// Ray spans of the pixels of a view. Orthographic rays differ only by an affine offset of
+/// their origin, so their spans come from a few multiply-adds per pixel instead of a camera
+/// ray each; perspective views use the renderer's own rays.
+enum PixelSpans<'a> {
+    Orthographic {
+        o00: [f64; 3],
+        du: [f64; 3],
+        dv: [f64; 3],
+        d: [f64; 3],
+    },
+    Perspective {
+        camera: &'a Camera,
+        frame: &'a ViewFrame,
+        spacing: [f32; 3],
+        unit: f32,
+    },
+}
+
+impl<'a> PixelSpans<'a> {
+    fn new(camera: &'a Camera, frame: &'a ViewFrame, volume: &Volume) -> Self {
+        let spacing = volume.spacing();
+        let unit = volume.unit();
+        if camera.projection == Projection::Perspective {
+            return PixelSpans::Perspective {
+                camera,
+                frame,
+                spacing,
+                unit,
+            };
+        }
+        let s = DVec3::from(spacing.map(f64::from));
+        let at = |x: f64, y: f64| camera.ray(frame, x, y).origin / s;
+        let o00 = at(0.5, 0.5);
+        let du = at(1.5, 0.5) - o00;
+        let dv = at(0.5, 1.5) - o00;
+        let d = frame.forward * f64::from(unit) / s;
+        PixelSpans::Orthographic {
+            o00: o00.to_array(),
+            du: du.to_array(),
+            dv: dv.to_array(),
+            d: d.to_array(),
+        }
+    }
+
+    /// The pixel's `t` span inside `b` (unclipped; may be empty: `t1 < t0`).
+    fn span(&self, x: u32, y: u32, b: &crate::brick::IndexBox) -> (f64, f64) {
+        match self {
+            PixelSpans::Orthographic { o00, du, dv, d } => {
+                let (fx, fy) = (f64::from(x), f64::from(y));
+                let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+                for a in 0..3 {
+                    let o = o00[a] + fx * du[a] + fy * dv[a];
+                    let (lo, hi) = (f64::from(b.lo[a]), f64::from(b.hi[a]));
+                    if d[a] == 0.0 {
+                        // Parallel to the slab: all or nothing, judged with the slack.
+                        if o < lo - SPAN_SLACK || o > hi + SPAN_SLACK {
+                            return (0.0, -1.0);
+                        }
+                        if o < lo + SPAN_SLACK || o > hi - SPAN_SLACK {
+                            t1 = t1.min(t0.max(0.0));
+                        }
+                        continue;
+                    }
+                    let (ta, tb) = ((lo - o) / d[a], (hi - o) / d[a]);
+                    t0 = t0.max(ta.min(tb));
+                    t1 = t1.min(ta.max(tb));
+                }
+                (t0, t1)
+            }
+            PixelSpans::Perspective {
+                camera,
+                frame,
+                spacing,
+                unit,
+            } => {
+                let r = IndexRay::new(
+                    &camera.ray(frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
+                    *spacing,
+                    *unit,
+                );
+                // The renderer's own ray and span test: no slack needed.
+                match r.span(b) {
+                    Some((t0, t1)) => (f64::from(t0).max(0.0), f64::from(t1)),
+                    None => (0.0, -1.0),
+                }
+            }
+        }
+    }
+
+    /// True when the pixel's ray may take a sample in `b` (conservatively).
+    fn hits(&self, x: u32, y: u32, b: &crate::brick::IndexBox) -> bool {
+        let (t0, t1) = self.span(x, y, b);
+        t1 - t0 > -SPAN_SLACK && t1 > -SPAN_SLACK
+    }
+
+    /// True when the pixel's ray surely runs at least `core` inside `b`.
+    fn in_core(&self, x: u32, y: u32, b: &crate::brick::IndexBox, core: f32) -> bool {
+        let (t0, t1) = self.span(x, y, b);
+        t1 - t0.max(0.0) >= f64::from(core) + SPAN_SLACK
     }
 }
