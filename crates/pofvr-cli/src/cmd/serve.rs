@@ -51,7 +51,11 @@ pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
             a.bind
         );
     }
-    let viewer = Viewer::new(job, pofs, &a.volume.volume, &ViewerOptions::default());
+    let opts = ViewerOptions {
+        loopback_hosts_only: a.bind.is_loopback(),
+        ..ViewerOptions::default()
+    };
+    let viewer = Viewer::new(job, pofs, &a.volume.volume, &opts);
     pofvr_web::serve_blocking(ServeConfig {
         viewer,
         addr: SocketAddr::new(a.bind, a.port),
