@@ -26,8 +26,8 @@
 //!
 //! A request supersedes every older request of the same `client` that has not started
 //! rendering; those are answered `204 No Content` with an `X-Pofvr-Superseded: 1` header,
-//! without rendering. A client renders at most
-//! one frame at a time, and at most [`ViewerOptions::render_slots`] frames render at once.
+//! without rendering. A client renders at most one frame at a time, and at most
+//! [`ViewerOptions::render_slots`] frames render at once.
 
 #![warn(missing_docs)]
 
