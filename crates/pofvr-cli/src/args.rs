@@ -168,6 +168,15 @@ pub(crate) struct FrameArgs {
     /// renderer that culled frames are checked against).
     #[arg(long, conflicts_with = "cull")]
     pub(crate) whole: bool,
+    /// Ranks to render with, as threads of this process (the paper's parallel algorithm;
+    /// the frame is identical for any count).
+    /// > default: 1
+    #[arg(long, default_value_t = 1)]
+    pub(crate) ranks: usize,
+    /// Space-filling curve along which bricks are dealt to ranks: hilbert or z.
+    /// > default: hilbert
+    #[arg(long, default_value = "hilbert")]
+    pub(crate) curve: String,
 }
 
 #[derive(Args, Debug)]

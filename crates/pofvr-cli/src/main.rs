@@ -8,6 +8,13 @@ mod resolve;
 use clap::Parser;
 
 fn main() {
+    // Die quietly on a closed pipe (`pofvr info … | head`) like other Unix tools, instead
+    // of panicking inside println!.
+    #[cfg(unix)]
+    // SAFETY: called first thing in main, before any thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = args::Cli::parse();
     if let Err(e) = run(cli) {
         eprintln!("pofvr: error: {e:#}");

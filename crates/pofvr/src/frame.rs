@@ -1,15 +1,17 @@
 //! `render_frame`: the one place where the stages are chained.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::brick::{BrickError, BrickGrid, BrickId};
+use crate::comm::{CommError, Communicator, LocalCommunicator, Rank};
+use crate::composite::{CompositeError, Compositor, DirectSend, TileFragment, TileLayout};
 use crate::cull::{CullMode, Culler, FrameBricks, OpacityBound};
+use crate::distribute::{BrickAssignment, Curve, DistributeError};
 use crate::render::{
-    Camera, Image, PixelRect, RayCaster, RayStats, RenderSettings, SampledTf, TfError,
-    TransferFunction,
+    Camera, Image, RayCaster, RayStats, RenderSettings, SampledTf, TfError, TransferFunction,
 };
 use crate::volume::Volume;
 
@@ -129,7 +131,7 @@ pub struct BrickCounts {
 }
 
 /// One rank's share of a frame.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct RankStats {
     /// The rank.
     pub rank: usize,
@@ -147,6 +149,10 @@ pub struct RankStats {
     pub comm_ms: f64,
     /// Bytes it sent.
     pub bytes_sent: u64,
+    /// Rays it cast (one per brick a pixel's ray meets).
+    pub rays: u64,
+    /// Its resident memory at the end of the frame (bytes; threads of one process share it).
+    pub resident_bytes: u64,
 }
 
 /// Per-frame choices.
@@ -156,6 +162,10 @@ pub struct FrameOptions {
     pub cull: CullMode,
     /// Opacity at which a pixel hides what is behind it.
     pub cull_threshold: f32,
+    /// In-process ranks (threads) for [`render_frame`].
+    pub ranks: usize,
+    /// The curve bricks are dealt along.
+    pub curve: Curve,
 }
 
 impl Default for FrameOptions {
@@ -163,6 +173,8 @@ impl Default for FrameOptions {
         FrameOptions {
             cull: CullMode::Pof,
             cull_threshold: 0.95,
+            ranks: 1,
+            curve: Curve::Hilbert,
         }
     }
 }
@@ -177,6 +189,27 @@ pub enum FrameError {
     /// Bad option.
     #[error("{0}")]
     Option(String),
+    /// Bricks could not be dealt to ranks.
+    #[error(transparent)]
+    Distribute(#[from] DistributeError),
+    /// Compositing failed (a lost fragment names its tile and rank).
+    #[error(transparent)]
+    Composite(#[from] CompositeError),
+    /// An exchange between ranks failed.
+    #[error(transparent)]
+    Comm(#[from] CommError),
+}
+
+impl FrameError {
+    /// True when this rank only saw another rank's abort.
+    #[must_use]
+    pub fn is_abort(&self) -> bool {
+        matches!(
+            self,
+            FrameError::Comm(CommError::Aborted { .. })
+                | FrameError::Composite(CompositeError::Comm(CommError::Aborted { .. }))
+        )
+    }
 }
 
 impl FrameStats {
@@ -210,24 +243,34 @@ pub fn render_reference(job: &RenderJob, camera: &Camera) -> (Image, FrameStats)
     )
 }
 
-/// A brick's partial image: premultiplied RGBA over its footprint, composited in `order`.
-struct Fragment {
-    order: usize,
-    rect: PixelRect,
-    pixels: Vec<[f32; 4]>,
-}
-
-/// Renders a frame the paper's way: cull bricks, ray-cast each visible brick over its own
-/// footprint, composite the partial images in visibility order.
+/// Renders a frame the paper's way (§3.3, §4) with `opts.ranks` in-process ranks: the same
+/// algorithm and the same image as any number of MPI ranks.
 ///
 /// # Errors
-/// [`FrameError`] when a POF mode has no bounds or an option is out of range.
+/// [`FrameError`] when a POF mode has no bounds, an option is out of range, or a rank fails.
 pub fn render_frame(
     job: &RenderJob,
     bounds: Option<&dyn OpacityBound>,
     camera: &Camera,
     opts: &FrameOptions,
 ) -> Result<(Image, FrameStats), FrameError> {
+    check_options(bounds, opts)?;
+    let mut results = LocalCommunicator::run(opts.ranks.max(1), |comm| {
+        render_frame_on(comm, job, bounds, camera, opts)
+    });
+    // Report rank 0's error first: it holds the frame; others may only have seen the abort.
+    let first = results.remove(0);
+    match first {
+        Ok(Some(frame)) => Ok(frame),
+        Ok(None) => Err(FrameError::Option("rank 0 returned no frame".into())),
+        Err(e) => Err(results
+            .into_iter()
+            .find_map(|r| r.err().filter(|e| !e.is_abort()))
+            .unwrap_or(e)),
+    }
+}
+
+fn check_options(bounds: Option<&dyn OpacityBound>, opts: &FrameOptions) -> Result<(), FrameError> {
     if opts.cull.needs_pofs() && bounds.is_none() {
         return Err(FrameError::NoPofs(opts.cull.name()));
     }
@@ -237,11 +280,72 @@ pub fn render_frame(
             opts.cull_threshold
         )));
     }
+    if !(1..=4096).contains(&opts.ranks) {
+        return Err(FrameError::Option(format!(
+            "--ranks {} must be in 1..=4096",
+            opts.ranks
+        )));
+    }
+    Ok(())
+}
+
+/// Timeout of each exchange of a frame: generous, it only turns a lost peer into an error.
+const EXCHANGE_TIMEOUT: Duration = Duration::from_secs(120);
+
+/// One rank's part of a frame (paper §4.2): cull for its tile, exchange visible ids,
+/// ray-cast its own visible bricks, send fragments to tile owners, gather on rank 0.
+/// Rank 0 returns the frame and the statistics of every rank; the others return `None`.
+///
+/// # Errors
+/// [`FrameError`] for bad options or a failed exchange; a failing rank aborts `comm` so that
+/// no peer waits forever.
+pub fn render_frame_on(
+    comm: &dyn Communicator,
+    job: &RenderJob,
+    bounds: Option<&dyn OpacityBound>,
+    camera: &Camera,
+    opts: &FrameOptions,
+) -> Result<Option<(Image, FrameStats)>, FrameError> {
+    let result = rank_frame(comm, job, bounds, camera, opts);
+    if let Err(e) = &result {
+        if !e.is_abort() {
+            comm.abort(&e.to_string());
+        }
+    }
+    result
+}
+
+#[allow(clippy::too_many_lines)]
+fn rank_frame(
+    comm: &dyn Communicator,
+    job: &RenderJob,
+    bounds: Option<&dyn OpacityBound>,
+    camera: &Camera,
+    opts: &FrameOptions,
+) -> Result<Option<(Image, FrameStats)>, FrameError> {
+    check_options(bounds, opts)?;
     let start = Instant::now();
+    let me = comm.rank();
     let weights = &job.tf.weights;
     let cls = job.sampled.classify(weights, job.settings.step);
     let caster = RayCaster::new(&job.volume, &cls, job.settings);
     let bricks = FrameBricks::new(&job.volume, &job.grid, &job.sampled, weights, camera);
+    let assignment = BrickAssignment::new(job.grid.counts(), opts.curve, comm.size())?;
+
+    // Cull for this rank's tile.
+    let t = Instant::now();
+    let layout = match bricks.bounds {
+        Some(b) => Some(TileLayout::new(
+            camera.width,
+            camera.height,
+            b,
+            comm.size(),
+        )?),
+        None => None,
+    };
+    let my_tile = layout
+        .as_ref()
+        .and_then(|l| l.tile_of(me).and_then(|id| l.tile(id)));
     let culler = Culler {
         volume: &job.volume,
         grid: &job.grid,
@@ -251,30 +355,49 @@ pub fn render_frame(
         bounds,
         caster: &caster,
     };
-    let whole = PixelRect {
-        x0: 0,
-        y0: 0,
-        x1: camera.width,
-        y1: camera.height,
-    };
-    let culled = culler.cull(camera, &bricks, whole);
-    let t_cast = Instant::now();
-    let frame = camera.frame();
-    let order_of: std::collections::HashMap<BrickId, usize> = bricks
-        .order
-        .iter()
-        .enumerate()
-        .map(|(i, id)| (*id, i))
-        .collect();
-    let (mut frags, rays): (Vec<Fragment>, Vec<RayStats>) = culled
+    let culled = my_tile
+        .map(|tile| culler.cull(camera, &bricks, tile))
+        .unwrap_or_default();
+    let cull_ms = t.elapsed().as_secs_f64() * 1e3;
+
+    // Every rank learns the union of the visible sets: a brick is visible when it is visible
+    // in any tile (the tiles' buffers agree wherever either is below the threshold).
+    let t = Instant::now();
+    let ids: Vec<u8> = culled
         .visible
+        .iter()
+        .flat_map(|b| b.0.to_le_bytes())
+        .collect();
+    let all = comm.all_gather(ids, EXCHANGE_TIMEOUT)?;
+    let mut visible = vec![false; job.grid.len()];
+    for bytes in &all {
+        for c in bytes.chunks_exact(4) {
+            let id = u32::from_le_bytes([c[0], c[1], c[2], c[3]]) as usize;
+            if let Some(v) = visible.get_mut(id) {
+                *v = true;
+            }
+        }
+    }
+    let mut comm_ms = t.elapsed().as_secs_f64() * 1e3;
+
+    // Ray-cast this rank's visible bricks, each over its own footprint.
+    let t = Instant::now();
+    let frame = camera.frame();
+    let mine: Vec<BrickId> = assignment
+        .of(me)
+        .iter()
+        .copied()
+        .filter(|b| visible[b.index()])
+        .collect();
+    let (fragments, rays): (Vec<TileFragment>, Vec<RayStats>) = mine
         .par_iter()
         .map(|id| {
             let rect = bricks.footprints[id.index()].expect("visible bricks are on screen");
             let (pixels, st) = caster.render_box(camera, &frame, rect, &job.grid.index_box(*id));
             (
-                Fragment {
-                    order: order_of[id],
+                TileFragment {
+                    brick: *id,
+                    depth_key: bricks.depth_key[id.index()],
                     rect,
                     pixels,
                 },
@@ -282,50 +405,82 @@ pub fn render_frame(
             )
         })
         .unzip();
-    let raycast_ms = t_cast.elapsed().as_secs_f64() * 1e3;
-    let t_comp = Instant::now();
-    frags.sort_unstable_by_key(|f| f.order);
-    let mut image = Image::new(camera.width, camera.height);
-    let w = camera.width as usize;
-    for f in &frags {
-        let fw = f.rect.width() as usize;
-        for (row, src_row) in f.pixels.chunks_exact(fw).enumerate() {
-            let y = f.rect.y0 as usize + row;
-            let dst_row = &mut image.pixels_mut()[y * w + f.rect.x0 as usize..][..fw];
-            for (d, s) in dst_row.iter_mut().zip(src_row) {
-                let k = 1.0 - d[3];
-                for c in 0..4 {
-                    d[c] += k * s[c];
-                }
-            }
-        }
-    }
-    let composite_ms = t_comp.elapsed().as_secs_f64() * 1e3;
-    let mut total = RayStats::default();
+    let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mut mine_stats = RayStats::default();
     for r in rays {
-        total += r;
+        mine_stats += r;
     }
-    let seconds = start.elapsed().as_secs_f64();
-    let mut stats = FrameStats::from_rays(total, seconds);
-    let non_empty = job.grid.len() - bricks.empty;
+
+    // Fragments to tile owners, tiles to rank 0.
+    let t = Instant::now();
+    let image = match &layout {
+        Some(l) => DirectSend::new(EXCHANGE_TIMEOUT).composite(comm, l, fragments)?,
+        None => (me.index() == 0).then(|| Image::new(camera.width, camera.height)),
+    };
+    let composite_ms = t.elapsed().as_secs_f64() * 1e3;
+
+    let t = Instant::now();
+    let mut rank = RankStats {
+        rank: me.index(),
+        bricks_rendered: mine.len(),
+        samples: mine_stats.samples,
+        cull_ms,
+        raycast_ms,
+        composite_ms,
+        comm_ms,
+        bytes_sent: comm.bytes_sent(),
+        rays: mine_stats.rays,
+        resident_bytes: resident_bytes(),
+    };
+    let gathered = comm.gather(
+        Rank(0),
+        serde_json::to_vec(&rank).expect("stats serialise"),
+        EXCHANGE_TIMEOUT,
+    )?;
+    comm_ms += t.elapsed().as_secs_f64() * 1e3;
+    rank.comm_ms = comm_ms;
+    let (Some(image), Some(gathered)) = (image, gathered) else {
+        return Ok(None);
+    };
+    let mut ranks: Vec<RankStats> = gathered
+        .iter()
+        .map(|b| serde_json::from_slice(b))
+        .collect::<Result<_, _>>()
+        .map_err(|e| FrameError::Option(format!("rank stats: {e}")))?;
+    ranks[0] = rank;
+    let total = RayStats {
+        rays: ranks.iter().map(|r| r.rays).sum(),
+        samples: ranks.iter().map(|r| r.samples).sum(),
+    };
+    let mut stats = FrameStats::from_rays(total, start.elapsed().as_secs_f64());
+    let n_visible = visible.iter().filter(|v| **v).count();
     stats.cull = Some(opts.cull);
     stats.bricks = BrickCounts {
         total: job.grid.len(),
         empty: bricks.empty,
-        non_empty,
-        culled: culled.culled.len(),
-        visible: culled.visible.len(),
+        non_empty: job.grid.len() - bricks.empty,
+        culled: bricks.order.len() - n_visible,
+        visible: n_visible,
     };
-    stats.ranks = vec![RankStats {
-        rank: 0,
-        bricks_rendered: culled.visible.len(),
-        samples: total.samples,
-        cull_ms: culled.cull_ms,
-        raycast_ms,
-        composite_ms,
-        comm_ms: 0.0,
-        bytes_sent: 0,
-    }];
-    stats.culled_bricks = culled.culled;
-    Ok((image, stats))
+    stats.culled_bricks = bricks
+        .order
+        .iter()
+        .copied()
+        .filter(|b| !visible[b.index()])
+        .collect();
+    stats.ranks = ranks;
+    Ok(Some((image, stats)))
+}
+
+/// This process's resident set size in bytes (Linux), 0 where unknown.
+#[must_use]
+pub fn resident_bytes() -> u64 {
+    std::fs::read_to_string("/proc/self/statm")
+        .ok()
+        .and_then(|s| {
+            s.split_whitespace()
+                .nth(1)
+                .and_then(|p| p.parse::<u64>().ok())
+        })
+        .map_or(0, |pages| pages * 4096)
 }

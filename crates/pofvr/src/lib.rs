@@ -13,11 +13,23 @@
 //! 4. [`render::Camera`] and [`render::RayCaster`]: front-to-back emission–absorption
 //!    ray casting on one global sample lattice, so bricks render seamlessly.
 //! 5. [`frame`]: the one place where stages are chained into a frame.
+//!
+//! For parallel frames (paper §4):
+//!
+//! - [`distribute::BrickAssignment`]: bricks dealt round-robin to ranks along a Hilbert or
+//!   Z curve ([`distribute::SfcOrder`]).
+//! - [`comm::Communicator`]: messages between ranks; [`comm::LocalCommunicator`] runs the
+//!   ranks as threads.
+//! - [`composite::DirectSend`]: brick fragments sent sparse to the owners of the image tiles
+//!   they overlap, blended in depth order and gathered into the frame.
 
 #![warn(missing_docs)]
 
 pub mod brick;
+pub mod comm;
+pub mod composite;
 pub mod cull;
+pub mod distribute;
 pub mod frame;
 pub mod io;
 pub mod render;

@@ -29,6 +29,12 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
         let opts = FrameOptions {
             cull,
             cull_threshold: a.frame.cull_threshold,
+            ranks: a.frame.ranks,
+            curve: a
+                .frame
+                .curve
+                .parse()
+                .map_err(|e| anyhow::anyhow!("--curve: {e}"))?,
         };
         render_frame(&job, None, &cam, &opts)?
     };

@@ -96,6 +96,10 @@ pub struct FrameBricks {
     pub footprints: Vec<Option<PixelRect>>,
     /// Number of bricks empty for the current weights.
     pub empty: usize,
+    /// Depth key of each brick by id (its position in `order`).
+    pub depth_key: Vec<i64>,
+    /// The union of the footprints: the image bounding box of what can be drawn.
+    pub bounds: Option<PixelRect>,
 }
 
 impl FrameBricks {
@@ -156,22 +160,31 @@ impl FrameBricks {
             keyed.push((key, id));
         }
         keyed.sort_unstable();
+        let order: Vec<BrickId> = keyed.into_iter().map(|(_, id)| id).collect();
+        let mut depth_key = vec![i64::MAX; grid.len()];
+        for (i, id) in order.iter().enumerate() {
+            #[allow(clippy::cast_possible_wrap)]
+            {
+                depth_key[id.index()] = i as i64;
+            }
+        }
+        let bounds = footprints
+            .iter()
+            .flatten()
+            .copied()
+            .reduce(|a: PixelRect, b| PixelRect {
+                x0: a.x0.min(b.x0),
+                y0: a.y0.min(b.y0),
+                x1: a.x1.max(b.x1),
+                y1: a.y1.max(b.y1),
+            });
         FrameBricks {
-            order: keyed.into_iter().map(|(_, id)| id).collect(),
+            order,
             footprints,
             empty,
+            depth_key,
+            bounds,
         }
-    }
-
-    /// The visibility key of each brick in `order`, for fragment depth keys.
-    #[must_use]
-    pub fn depth_keys(&self) -> Vec<(BrickId, i64)> {
-        #[allow(clippy::cast_possible_wrap)]
-        self.order
-            .iter()
-            .enumerate()
-            .map(|(i, id)| (*id, i as i64))
-            .collect()
     }
 }
 

@@ -114,6 +114,7 @@ fn range_bound_and_exact_culling_are_conservative_and_cull() {
                 let opts = FrameOptions {
                     cull: mode,
                     cull_threshold: 0.95,
+                    ..FrameOptions::default()
                 };
                 let (img, st) = render_frame(&j, Some(&bound), &c, &opts).unwrap();
                 assert_conservative(
@@ -147,4 +148,50 @@ fn pof_modes_without_pofs_are_an_error() {
     let e = render_frame(&j, None, &c, &FrameOptions::default()).unwrap_err();
     assert!(e.to_string().contains("pof build"), "{e}");
     let _ = TransferFunction::from_json(families::SHEPP_LOGAN_JSON, "x").unwrap();
+}
+
+#[test]
+fn frame_is_identical_for_any_rank_count_and_curve() {
+    use crate::distribute::Curve;
+    let j = job(40, &[2.0, 1.0]);
+    let bound = RangeBound::new(&j.grid, &j.sampled, j.settings.step, j.settings.ert, 4.0);
+    for (az, el, p, mode) in [
+        (30.0, 20.0, Projection::Orthographic, CullMode::Exact),
+        (-60.0, 10.0, Projection::Perspective, CullMode::Pof),
+        (0.0, 0.0, Projection::Orthographic, CullMode::None),
+    ] {
+        let c = cam(&j, az, el, p);
+        let one = FrameOptions {
+            cull: mode,
+            ranks: 1,
+            ..FrameOptions::default()
+        };
+        let (base, base_stats) = render_frame(&j, Some(&bound), &c, &one).unwrap();
+        for curve in [Curve::Hilbert, Curve::Z] {
+            for ranks in [1, 2, 3, 4, 7, 32] {
+                let opts = FrameOptions {
+                    cull: mode,
+                    ranks,
+                    curve,
+                    ..FrameOptions::default()
+                };
+                let (img, st) = render_frame(&j, Some(&bound), &c, &opts).unwrap();
+                assert_eq!(
+                    img.max_abs_diff(&base),
+                    Some(0.0),
+                    "{mode:?} {curve:?} {ranks} ranks"
+                );
+                assert_eq!(
+                    st.bricks, base_stats.bricks,
+                    "{mode:?} {curve:?} {ranks} ranks"
+                );
+                assert_eq!(st.ranks.len(), ranks);
+                let rendered: usize = st.ranks.iter().map(|r| r.bricks_rendered).sum();
+                assert_eq!(
+                    rendered, st.bricks.visible,
+                    "each visible brick is rendered once"
+                );
+            }
+        }
+    }
 }

@@ -8,6 +8,7 @@
 //! `(i·sx, j·sy, k·sz)`. The sampled domain is the box `[0, dims-1]` in index space.
 
 mod error;
+mod header;
 pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;

@@ -76,7 +76,7 @@ pub fn open(path: &Path, spec: &RawSpec) -> Result<Volume, VolumeError> {
     if len.checked_sub(spec.offset) != Some(expected) {
         return Err(VolumeError::SizeMismatch {
             file: source,
-            expected: expected + spec.offset,
+            expected: expected.saturating_add(spec.offset),
             got: len,
         });
     }

@@ -1,0 +1,340 @@
+//! End-to-end tests of the `pofvr` binary: outputs, contracts and bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn pofvr(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pofvr"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run pofvr")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+#[test]
+fn demo_needs_no_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(&["demo", "--n", "48"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let png = std::fs::read(dir.path().join("demo.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+}
+
+#[test]
+fn stats_camera_and_raw_outputs_follow_the_contract() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(
+        &[
+            "render",
+            "phantom:head:40",
+            "--view",
+            "30,-20",
+            "--size",
+            "40x30",
+            "--out",
+            "a.png",
+            "--out-raw",
+            "a.f32",
+            "--stats",
+            "s.json",
+            "--camera-out",
+            "cam.json",
+            "--cull",
+            "exact",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stats: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("s.json")).unwrap()).unwrap();
+    for key in ["frame_ms", "rays", "samples", "samples_per_second"] {
+        assert!(stats[key].is_number(), "{key} missing: {stats}");
+    }
+    for key in ["total", "empty", "non_empty", "culled", "visible"] {
+        assert!(
+            stats["bricks"][key].is_number(),
+            "bricks.{key} missing: {stats}"
+        );
+    }
+    for key in [
+        "rank",
+        "bricks_rendered",
+        "samples",
+        "cull_ms",
+        "raycast_ms",
+        "composite_ms",
+        "comm_ms",
+        "bytes_sent",
+    ] {
+        assert!(
+            stats["ranks"][0][key].is_number(),
+            "ranks[0].{key} missing: {stats}"
+        );
+    }
+    assert_eq!(
+        std::fs::metadata(dir.path().join("a.f32")).unwrap().len(),
+        40 * 30 * 16
+    );
+    let cam: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("cam.json")).unwrap()).unwrap();
+    assert_eq!(cam["projection"], "orthographic");
+    assert_eq!(cam["width"], 40);
+    // The written camera reproduces the frame exactly.
+    let o = pofvr(
+        &[
+            "render",
+            "phantom:head:40",
+            "--camera",
+            "cam.json",
+            "--out",
+            "b.png",
+            "--out-raw",
+            "b.f32",
+            "--cull",
+            "exact",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(dir.path().join("a.f32")).unwrap(),
+        std::fs::read(dir.path().join("b.f32")).unwrap()
+    );
+}
+
+/// Runs a command expected to fail; checks exit code 2, the message parts, and that no
+/// output file was created.
+fn expect_error(dir: &Path, args: &[&str], parts: &[&str]) {
+    let before = files_in(dir);
+    let o = pofvr(args, dir);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+    let e = stderr(&o);
+    for p in parts {
+        assert!(e.contains(p), "{args:?}: message lacks {p:?}: {e}");
+    }
+    assert!(!e.contains("panicked"), "{e}");
+    assert_eq!(files_in(dir), before, "{args:?} left files behind");
+}
+
+#[test]
+fn bad_input_is_a_clear_error_and_leaves_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("short.raw"), [0u8; 100]).unwrap();
+    expect_error(
+        d,
+        &[
+            "render",
+            "short.raw",
+            "--dims",
+            "8,8,8",
+            "--dtype",
+            "u8",
+            "--tf",
+            "x.json",
+            "--out",
+            "o.png",
+        ],
+        &["short.raw", "expected 512", "got 100"],
+    );
+    expect_error(
+        d,
+        &[
+            "render",
+            "short.raw",
+            "--dims",
+            "5,5,5",
+            "--dtype",
+            "u8",
+            "--out",
+            "o.png",
+        ],
+        &["short.raw", "expected 125", "got 100"],
+    );
+    expect_error(
+        d,
+        &["info", "short.raw", "--dims", "0,5,5", "--dtype", "u8"],
+        &["short.raw", "at least 1"],
+    );
+    expect_error(
+        d,
+        &[
+            "info",
+            "short.raw",
+            "--dims",
+            "4000000000,4000000000,4000000000",
+            "--dtype",
+            "u8",
+        ],
+        &["short.raw", "overflow"],
+    );
+    expect_error(
+        d,
+        &["info", "short.raw", "--dims", "10,10,1", "--dtype", "u12"],
+        &["--dtype", "u12"],
+    );
+    std::fs::write(
+        d.join("tf.json"),
+        r#"{"bases":[{"name":"a","opacity":[[10,0.1],[5,0.2]]}],"color":[[0,1,1,1]]}"#,
+    )
+    .unwrap();
+    expect_error(
+        d,
+        &[
+            "render",
+            "phantom:head:16",
+            "--tf",
+            "tf.json",
+            "--out",
+            "o.png",
+        ],
+        &["tf.json", "bases[0].opacity[1]", "sorted"],
+    );
+    std::fs::write(
+        d.join("tf.json"),
+        r#"{"bases":[{"name":"a","opacity":[[0,1.2]]}],"color":[[0,1,1,1]]}"#,
+    )
+    .unwrap();
+    expect_error(
+        d,
+        &[
+            "render",
+            "phantom:head:16",
+            "--tf",
+            "tf.json",
+            "--out",
+            "o.png",
+        ],
+        &["tf.json", "outside [0, 1]"],
+    );
+    expect_error(
+        d,
+        &[
+            "render",
+            "phantom:head:16",
+            "--weights",
+            "1,-1",
+            "--out",
+            "o.png",
+        ],
+        &["--weights", "weights[1]"],
+    );
+    expect_error(
+        d,
+        &[
+            "render",
+            "phantom:head:16",
+            "--weights",
+            "1",
+            "--out",
+            "o.png",
+        ],
+        &["--weights", "expected one per basis"],
+    );
+    std::fs::write(
+        d.join("v.nhdr"),
+        "NRRD0004\ntype: uint8\ndimension: 3\nencoding: raw\ndata file: short.raw\n",
+    )
+    .unwrap();
+    expect_error(d, &["info", "v.nhdr"], &["v.nhdr", "sizes"]);
+    let o = pofvr(
+        &[
+            "render",
+            "phantom:head:16",
+            "--out",
+            "/nonexistent-dir/o.png",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("/nonexistent-dir/o.png"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn f32_data_with_nan_is_rejected_naming_the_voxel() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut v = [0.5f32; 27];
+    v[13] = f32::NAN;
+    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+    std::fs::write(dir.path().join("nan.raw"), bytes).unwrap();
+    expect_error(
+        dir.path(),
+        &["info", "nan.raw", "--dims", "3,3,3", "--dtype", "f32"],
+        &["nan.raw", "NaN", "index 13"],
+    );
+}
+
+/// One render of each catalogued real volume with its family (skipped without the data).
+#[test]
+fn every_real_volume_renders() {
+    let data = repo().join("../shared/data");
+    if !data.join("CATALOG.md").exists() {
+        eprintln!(
+            "skipping: {} not present (a user's clone has no shared data)",
+            data.display()
+        );
+        return;
+    }
+    let cases = [
+        ("neghip/neghip.nhdr", "sim-isobands.json"),
+        ("ironprot/ironprot.nhdr", "sim-isobands.json"),
+        ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
+        (
+            "headsq_quarter/headsq_quarter.mhd",
+            "ct-head-skin-bone.json",
+        ),
+        (
+            "lidc2_ct_chest/lidc2_ct_chest.nhdr",
+            "ct-chest-skin-bone.json",
+        ),
+        ("ch2better_mri/source/ch2better.nii.gz", "mri-brain.json"),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    for (vol, tf) in cases {
+        let v = data.join(vol);
+        let t = repo().join("tfs").join(tf);
+        let o = pofvr(
+            &[
+                "render",
+                v.to_str().unwrap(),
+                "--tf",
+                t.to_str().unwrap(),
+                "--size",
+                "96x96",
+                "--out",
+                "r.png",
+                "--stats",
+                "s.json",
+            ],
+            dir.path(),
+        );
+        assert!(o.status.success(), "{vol}: {}", stderr(&o));
+        let stats: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join("s.json")).unwrap()).unwrap();
+        assert!(
+            stats["samples"].as_u64().unwrap() > 0,
+            "{vol} rendered nothing"
+        );
+    }
+}

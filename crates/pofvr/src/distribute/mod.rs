@@ -1,0 +1,237 @@
+//! Static data distribution along a space-filling curve (paper §4.1).
+//!
+//! Bricks are listed in the order of a Hilbert or Z curve and dealt to ranks round-robin
+//! along that order. The curves are defined on the power-of-two cube enclosing the brick
+//! grid; cells outside the grid are skipped, so any `[nx, ny, nz]` works. Because a curve
+//! finishes a neighbourhood before leaving it, consecutive bricks are close together and the
+//! visible bricks of any view end up spread evenly over the ranks.
+
+pub mod hilbert;
+pub mod morton;
+#[cfg(test)]
+mod test;
+
+use std::fmt;
+use std::str::FromStr;
+
+use crate::brick::BrickId;
+pub use crate::comm::Rank;
+
+/// A space-filling curve.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Curve {
+    /// The 3D Hilbert curve: consecutive cells are face neighbours.
+    Hilbert,
+    /// The Z (Morton) curve: bit interleaving, cheaper but with jumps.
+    Z,
+}
+
+impl FromStr for Curve {
+    type Err = DistributeError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "hilbert" => Ok(Curve::Hilbert),
+            "z" => Ok(Curve::Z),
+            _ => Err(DistributeError::UnknownCurve(s.to_owned())),
+        }
+    }
+}
+
+impl fmt::Display for Curve {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Curve::Hilbert => "hilbert",
+            Curve::Z => "z",
+        })
+    }
+}
+
+/// Errors setting up a distribution.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DistributeError {
+    /// The curve name is not known.
+    #[error("unknown curve {0:?}, expected \"hilbert\" or \"z\"")]
+    UnknownCurve(String),
+    /// A brick count is zero, or the grid is too large for the curves or for [`BrickId`].
+    #[error(
+        "brick counts {counts:?} are unusable: expected each in 1..={max_side} and at most \
+         {max_bricks} bricks in all"
+    )]
+    BadCounts {
+        /// The counts given.
+        counts: [usize; 3],
+        /// The largest count per axis.
+        max_side: usize,
+        /// The largest number of bricks.
+        max_bricks: u64,
+    },
+    /// The number of ranks is zero or does not fit a [`Rank`].
+    #[error("got {0} ranks, expected 1..={max}", max = u32::MAX)]
+    BadRanks(usize),
+}
+
+/// All bricks of a grid in the order of a space-filling curve.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SfcOrder {
+    counts: [usize; 3],
+    curve: Curve,
+    bricks: Vec<BrickId>,
+}
+
+impl SfcOrder {
+    /// Orders the bricks of a grid with `counts` bricks along x, y, z (ids x fastest, as
+    /// [`crate::brick::BrickGrid::id`]).
+    ///
+    /// # Errors
+    /// [`DistributeError::BadCounts`] when a count is zero, above `2^21`, or the grid has
+    /// more bricks than [`BrickId`] can number.
+    pub fn new(counts: [usize; 3], curve: Curve) -> Result<Self, DistributeError> {
+        const MAX_SIDE: usize = 1 << morton::MAX_BITS;
+        let max_bricks = u64::from(u32::MAX) + 1;
+        let bad = || DistributeError::BadCounts {
+            counts,
+            max_side: MAX_SIDE,
+            max_bricks,
+        };
+        if counts.iter().any(|&c| c == 0 || c > MAX_SIDE) {
+            return Err(bad());
+        }
+        let total = counts
+            .iter()
+            .try_fold(1u64, |a, &c| a.checked_mul(c as u64))
+            .ok_or_else(bad)?;
+        if total > max_bricks {
+            return Err(bad());
+        }
+        let side = counts.iter().copied().max().unwrap_or(1);
+        let bits = side.next_power_of_two().trailing_zeros();
+        // Sorting the in-range cells by their key on the enclosing cube equals walking the
+        // whole cube and skipping the outside cells, without visiting up to 8× (or, for flat
+        // grids, far more) empty cells.
+        let mut keyed: Vec<(u64, BrickId)> = Vec::with_capacity(total as usize);
+        let mut id = 0u32;
+        for z in 0..counts[2] {
+            for y in 0..counts[1] {
+                for x in 0..counts[0] {
+                    #[allow(clippy::cast_possible_truncation)]
+                    let c = [x as u32, y as u32, z as u32];
+                    let key = match curve {
+                        Curve::Hilbert => hilbert::index(c, bits),
+                        Curve::Z => morton::encode(c),
+                    }
+                    .ok_or_else(bad)?;
+                    keyed.push((key, BrickId(id)));
+                    id = id.wrapping_add(1);
+                }
+            }
+        }
+        keyed.sort_unstable();
+        Ok(SfcOrder {
+            counts,
+            curve,
+            bricks: keyed.into_iter().map(|(_, b)| b).collect(),
+        })
+    }
+
+    /// Every brick id once, in curve order.
+    #[must_use]
+    pub fn bricks(&self) -> &[BrickId] {
+        &self.bricks
+    }
+
+    /// The brick counts along x, y, z.
+    #[must_use]
+    pub fn counts(&self) -> [usize; 3] {
+        self.counts
+    }
+
+    /// The curve.
+    #[must_use]
+    pub fn curve(&self) -> Curve {
+        self.curve
+    }
+
+    /// Number of bricks.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.bricks.len()
+    }
+
+    /// Always false: a grid has at least one brick.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.bricks.is_empty()
+    }
+}
+
+/// Which rank owns which brick: bricks dealt round-robin along a curve.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BrickAssignment {
+    owners: Vec<Rank>,
+    by_rank: Vec<Vec<BrickId>>,
+}
+
+impl BrickAssignment {
+    /// Deals the bricks of a grid with `counts` bricks to `ranks` ranks along `curve`.
+    ///
+    /// # Errors
+    /// [`DistributeError::BadCounts`] as for [`SfcOrder::new`], and
+    /// [`DistributeError::BadRanks`] when `ranks` is zero or above `u32::MAX`.
+    pub fn new(counts: [usize; 3], curve: Curve, ranks: usize) -> Result<Self, DistributeError> {
+        Self::from_order(&SfcOrder::new(counts, curve)?, ranks)
+    }
+
+    /// Deals the bricks of `order` to `ranks` ranks: the `i`-th brick goes to rank
+    /// `i mod ranks`.
+    ///
+    /// # Errors
+    /// [`DistributeError::BadRanks`] when `ranks` is zero or above `u32::MAX`.
+    pub fn from_order(order: &SfcOrder, ranks: usize) -> Result<Self, DistributeError> {
+        if ranks == 0 || u32::try_from(ranks).is_err() {
+            return Err(DistributeError::BadRanks(ranks));
+        }
+        let mut owners = vec![Rank(0); order.len()];
+        let mut by_rank = vec![Vec::with_capacity(order.len() / ranks + 1); ranks];
+        for (i, &b) in order.bricks().iter().enumerate() {
+            let r = i % ranks;
+            #[allow(clippy::cast_possible_truncation)]
+            let rank = Rank(r as u32);
+            owners[b.index()] = rank;
+            by_rank[r].push(b);
+        }
+        Ok(BrickAssignment { owners, by_rank })
+    }
+
+    /// The rank owning brick `id`; `None` when `id` is not a brick of the grid.
+    #[must_use]
+    pub fn owner(&self, id: BrickId) -> Option<Rank> {
+        self.owners.get(id.index()).copied()
+    }
+
+    /// The bricks of `rank`, in curve order; empty for a rank outside `0..ranks()`.
+    #[must_use]
+    pub fn of(&self, rank: Rank) -> &[BrickId] {
+        self.by_rank.get(rank.index()).map_or(&[], Vec::as_slice)
+    }
+
+    /// Number of ranks.
+    #[must_use]
+    pub fn ranks(&self) -> usize {
+        self.by_rank.len()
+    }
+
+    /// Number of bricks.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.owners.len()
+    }
+
+    /// Always false: a grid has at least one brick.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.owners.is_empty()
+    }
+}
