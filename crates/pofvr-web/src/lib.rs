@@ -83,6 +83,9 @@ pub struct ViewerOptions {
     /// `[::1]`), which defeats DNS rebinding; turn off when binding another address.
     /// > default: true
     pub loopback_hosts_only: bool,
+    /// In-process ranks per frame, as `pofvr render --ranks`.
+    /// > default: 1
+    pub ranks: usize,
 }
 
 impl Default for ViewerOptions {
@@ -92,6 +95,7 @@ impl Default for ViewerOptions {
                 .map_or(1, std::num::NonZeroUsize::get),
             max_clients: 256,
             loopback_hosts_only: true,
+            ranks: 1,
         }
     }
 }
@@ -128,6 +132,7 @@ impl Viewer {
                 } else {
                     CullMode::None
                 },
+                ranks: options.ranks.max(1),
                 ..FrameOptions::default()
             },
             overlay: false,

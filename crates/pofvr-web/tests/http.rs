@@ -273,6 +273,27 @@ async fn weights_change_the_frame_and_exact_culling_is_counted_and_tinted() {
 }
 
 #[tokio::test]
+async fn ranks_split_the_frame_without_changing_it() {
+    let one = viewer(32, 2);
+    let opts = ViewerOptions {
+        ranks: 3,
+        ..ViewerOptions::default()
+    };
+    let three = Arc::new(Viewer::new(job(32), None, "phantom:head", &opts));
+    let q = "/api/frame?w=48&h=40&az=20&el=10&cull=exact";
+    let (a, b) = (get(&one, q).await, get(&three, q).await);
+    assert_eq!(
+        (a.status, b.status),
+        (StatusCode::OK, StatusCode::OK),
+        "{}",
+        b.text()
+    );
+    assert_eq!(png_size(&a.body).2, png_size(&b.body).2);
+    assert_eq!(a.stats.unwrap()["ranks"], 1);
+    assert_eq!(b.stats.unwrap()["ranks"], 3);
+}
+
+#[tokio::test]
 async fn pof_modes_render_when_the_viewer_has_bounds() {
     let v = viewer_with_bounds(32);
     let info: serde_json::Value = serde_json::from_slice(&get(&v, "/api/info").await.body).unwrap();
