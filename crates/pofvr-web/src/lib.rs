@@ -20,12 +20,14 @@
 //! `weights` (comma-separated, one per basis, each in [0, 100]), `threshold` (in
 //! [0.01, 1]), `cull` (`none` | `pof` | `pof-set` | `exact`), `shade` and `overlay` (`0` |
 //! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). An invalid, unknown or
-//! repeated parameter is answered `400` with a plain-text message.
+//! repeated parameter is answered `400` with a plain-text message. Unless
+//! [`ViewerOptions::loopback_hosts_only`] is off, a `Host` other than a loopback name gets
+//! `403`.
 //!
 //! A request supersedes every older request of the same `client` that has not started
 //! rendering; those are answered `204 No Content` with an `X-Pofvr-Superseded: 1` header,
-//! without rendering. A client renders at most
-//! one frame at a time, and at most [`ViewerOptions::render_slots`] frames render at once.
+//! without rendering. A client renders at most one frame at a time, and at most
+//! [`ViewerOptions::render_slots`] frames render at once.
 
 #![warn(missing_docs)]
 
@@ -77,6 +79,13 @@ pub struct ViewerOptions {
     /// has a request in flight.
     /// > default: 256
     pub max_clients: usize,
+    /// Answer only requests whose `Host` is a loopback name (`localhost`, `127.x.x.x`,
+    /// `[::1]`), which defeats DNS rebinding; turn off when binding another address.
+    /// > default: true
+    pub loopback_hosts_only: bool,
+    /// In-process ranks per frame, as `pofvr render --ranks`.
+    /// > default: 1
+    pub ranks: usize,
 }
 
 impl Default for ViewerOptions {
@@ -85,6 +94,8 @@ impl Default for ViewerOptions {
             render_slots: std::thread::available_parallelism()
                 .map_or(1, std::num::NonZeroUsize::get),
             max_clients: 256,
+            loopback_hosts_only: true,
+            ranks: 1,
         }
     }
 }
@@ -96,6 +107,7 @@ pub struct Viewer {
     source: String,
     scheduler: Scheduler,
     defaults: FrameParams,
+    loopback_hosts_only: bool,
 }
 
 impl Viewer {
@@ -120,6 +132,7 @@ impl Viewer {
                 } else {
                     CullMode::None
                 },
+                ranks: options.ranks.max(1),
                 ..FrameOptions::default()
             },
             overlay: false,
@@ -132,6 +145,7 @@ impl Viewer {
             source: source.to_string(),
             scheduler: Scheduler::new(options.render_slots, options.max_clients),
             defaults,
+            loopback_hosts_only: options.loopback_hosts_only,
         }
     }
 
@@ -207,20 +221,33 @@ pub fn router(viewer: Arc<Viewer>) -> Router {
         .route("/api/status", get(status))
         .route("/api/frame", get(frame))
         .fallback(|| async { (StatusCode::NOT_FOUND, "no such page\n") })
-        .layer(middleware::from_fn(guard))
+        .layer(middleware::from_fn_with_state(Arc::clone(&viewer), guard))
         .with_state(viewer)
 }
 
-/// Rejects oversized requests before routing and marks every answer as not to be sniffed
-/// or framed by another site.
-async fn guard(req: Request, next: Next) -> Response {
+/// Rejects oversized requests and foreign host names before routing, and marks every
+/// answer as not to be sniffed or framed by another site.
+async fn guard(State(v): State<Arc<Viewer>>, req: Request, next: Next) -> Response {
     let too_long = req
         .headers()
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.parse::<u64>().map_or(true, |n| n > MAX_BODY_BYTES));
     let chunked = req.headers().contains_key(header::TRANSFER_ENCODING);
-    let mut resp = if too_long || chunked {
+    let foreign_host = v.loopback_hosts_only
+        && req
+            .headers()
+            .get(header::HOST)
+            .is_some_and(|h| !h.to_str().is_ok_and(is_loopback_host));
+    let mut resp = if foreign_host {
+        // A page on another site can point its own host name at 127.0.0.1 (DNS rebinding)
+        // and would then pass the browser's same-origin checks; its Host header gives it
+        // away.
+        text(
+            StatusCode::FORBIDDEN,
+            "this viewer answers only to localhost, 127.x.x.x and [::1] host names",
+        )
+    } else if too_long || chunked {
         (
             StatusCode::PAYLOAD_TOO_LARGE,
             format!("request bodies are limited to {MAX_BODY_BYTES} bytes\n"),
@@ -248,6 +275,19 @@ async fn guard(req: Request, next: Next) -> Response {
         ),
     );
     resp
+}
+
+/// True for `localhost`, an IPv4 loopback address or `[::1]`, with or without a port.
+fn is_loopback_host(host: &str) -> bool {
+    let name = if let Some(rest) = host.strip_prefix('[') {
+        rest.split(']').next().unwrap_or("")
+    } else {
+        host.rsplit_once(':').map_or(host, |(n, _)| n)
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
 }
 
 fn page(content_type: &'static str, body: &'static str) -> Response {

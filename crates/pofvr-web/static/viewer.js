@@ -128,6 +128,7 @@
     $('fig-frame-ms').textContent = fmt(s.frame_ms);
     $('fig-resolution').textContent = `${s.width}×${s.height}${low ? ' (dragging)' : ''}`;
     $('fig-sps').textContent = (s.samples_per_second / 1e6).toFixed(1) + ' M';
+    $('fig-ranks').textContent = s.ranks;
     $('fig-visible').textContent = s.bricks.visible;
     $('fig-culled').textContent = s.bricks.culled;
     $('fig-empty').textContent = s.bricks.empty;

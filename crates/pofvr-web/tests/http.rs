@@ -162,6 +162,48 @@ async fn oversized_requests_are_refused_before_routing() {
 }
 
 #[tokio::test]
+async fn only_loopback_host_names_are_answered() {
+    let v = viewer(16, 1);
+    for host in [
+        "localhost:8080",
+        "127.0.0.1",
+        "127.0.0.2:9",
+        "[::1]:8080",
+        "LOCALHOST",
+    ] {
+        let req = Request::get("/api/info")
+            .header("host", host)
+            .body(Body::empty())
+            .unwrap();
+        assert_eq!(call(&v, req).await.status, StatusCode::OK, "{host}");
+    }
+    for host in [
+        "evil.example:8080",
+        "localhost.evil.example",
+        "10.0.0.1",
+        "[::2]",
+    ] {
+        let req = Request::get("/api/info")
+            .header("host", host)
+            .body(Body::empty())
+            .unwrap();
+        let a = call(&v, req).await;
+        assert_eq!(a.status, StatusCode::FORBIDDEN, "{host}");
+        assert!(a.text().contains("localhost"), "{host}: {}", a.text());
+    }
+    let opts = ViewerOptions {
+        loopback_hosts_only: false,
+        ..ViewerOptions::default()
+    };
+    let open = Arc::new(Viewer::new(job(16), None, "phantom:head", &opts));
+    let req = Request::get("/api/info")
+        .header("host", "viewer.lan")
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(call(&open, req).await.status, StatusCode::OK);
+}
+
+#[tokio::test]
 async fn a_valid_frame_is_a_png_of_the_asked_size_with_its_figures() {
     let v = viewer(32, 2);
     let a = get(
@@ -228,6 +270,27 @@ async fn weights_change_the_frame_and_exact_culling_is_counted_and_tinted() {
         changed > 0,
         "the overlay tinted no pixel although {culled} bricks were culled"
     );
+}
+
+#[tokio::test]
+async fn ranks_split_the_frame_without_changing_it() {
+    let one = viewer(32, 2);
+    let opts = ViewerOptions {
+        ranks: 3,
+        ..ViewerOptions::default()
+    };
+    let three = Arc::new(Viewer::new(job(32), None, "phantom:head", &opts));
+    let q = "/api/frame?w=48&h=40&az=20&el=10&cull=exact";
+    let (a, b) = (get(&one, q).await, get(&three, q).await);
+    assert_eq!(
+        (a.status, b.status),
+        (StatusCode::OK, StatusCode::OK),
+        "{}",
+        b.text()
+    );
+    assert_eq!(png_size(&a.body).2, png_size(&b.body).2);
+    assert_eq!(a.stats.unwrap()["ranks"], 1);
+    assert_eq!(b.stats.unwrap()["ranks"], 3);
 }
 
 #[tokio::test]

@@ -31,6 +31,10 @@ pub(crate) struct ServeArgs {
     /// > default: 127.0.0.1
     #[arg(long, default_value_t = IpAddr::V4(Ipv4Addr::LOCALHOST))]
     pub(crate) bind: IpAddr,
+    /// In-process ranks per frame (bricks dealt along a Hilbert curve, as `pofvr render`).
+    /// > default: 1
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub(crate) ranks: u16,
 }
 
 pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
@@ -51,7 +55,12 @@ pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
             a.bind
         );
     }
-    let viewer = Viewer::new(job, pofs, &a.volume.volume, &ViewerOptions::default());
+    let opts = ViewerOptions {
+        loopback_hosts_only: a.bind.is_loopback(),
+        ranks: usize::from(a.ranks),
+        ..ViewerOptions::default()
+    };
+    let viewer = Viewer::new(job, pofs, &a.volume.volume, &opts);
     pofvr_web::serve_blocking(ServeConfig {
         viewer,
         addr: SocketAddr::new(a.bind, a.port),
