@@ -1,0 +1,111 @@
+//! Culling on the catalogue's real volumes: every mode against the unculled reference, with
+//! the rule that pixels below the threshold are identical and none differs by more than
+//! 1 − threshold. Skipped, with a printed reason, where the data are absent.
+
+use std::path::{Path, PathBuf};
+
+use pofvr::cull::range_bound::RangeBound;
+use pofvr::cull::{CullMode, OpacityBound};
+use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
+use pofvr::render::{Camera, Image, Projection, RenderSettings, TransferFunction};
+use pofvr::volume::Volume;
+
+fn data_dir() -> Option<PathBuf> {
+    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    if d.join("CATALOG.md").exists() {
+        Some(d)
+    } else {
+        eprintln!(
+            "skipping: {} not present (a user's clone has no shared data)",
+            d.display()
+        );
+        None
+    }
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+pub fn assert_conservative(reference: &Image, culled: &Image, threshold: f32, what: &str) {
+    let mut worst = 0f32;
+    for (i, (r, c)) in reference.pixels().iter().zip(culled.pixels()).enumerate() {
+        let d = (0..4).map(|k| (r[k] - c[k]).abs()).fold(0.0, f32::max);
+        if r[3] < threshold {
+            assert!(
+                d <= 1e-6,
+                "{what}: pixel {i} (reference alpha {}) differs by {d}",
+                r[3]
+            );
+        }
+        worst = worst.max(d);
+    }
+    assert!(
+        worst <= 1.0 - threshold + 1e-6,
+        "{what}: a pixel differs by {worst}"
+    );
+}
+
+const CASES: [(&str, &str); 6] = [
+    ("neghip/neghip.nhdr", "sim-isobands.json"),
+    ("ironprot/ironprot.nhdr", "sim-isobands.json"),
+    ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
+    (
+        "headsq_quarter/headsq_quarter.nhdr",
+        "ct-head-skin-bone.json",
+    ),
+    (
+        "lidc2_ct_chest/lidc2_ct_chest.nhdr",
+        "ct-chest-skin-bone.json",
+    ),
+    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain.json"),
+];
+
+#[test]
+fn culling_is_conservative_on_every_real_volume() {
+    let Some(data) = data_dir() else { return };
+    for (vol, tf) in CASES {
+        let volume = Volume::open(&data.join(vol), None).unwrap();
+        let tf = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
+        let mut job = RenderJob::new(volume, tf, 16, RenderSettings::default()).unwrap();
+        for weights in [[1.0, 1.0], [2.5, 0.5]] {
+            job.tf.set_weights(weights.to_vec()).unwrap();
+            let bound = RangeBound::new(
+                &job.grid,
+                &job.sampled,
+                job.settings.step,
+                job.settings.ert,
+                8.0,
+            );
+            let bounds: Option<&dyn OpacityBound> = Some(&bound);
+            for (az, el, p) in [
+                (0.0, 0.0, Projection::Orthographic),
+                (37.0, 23.0, Projection::Orthographic),
+                (-110.0, -30.0, Projection::Perspective),
+            ] {
+                let cam = Camera::orbit(&job.volume, az, el, 80, 72, p);
+                let (reference, _) = render_reference(&job, &cam);
+                let mut culled = Vec::new();
+                for mode in [CullMode::None, CullMode::Pof, CullMode::Exact] {
+                    let opts = FrameOptions {
+                        cull: mode,
+                        ranks: 2,
+                        ..FrameOptions::default()
+                    };
+                    let (img, st) = render_frame(&job, bounds, &cam, &opts).unwrap();
+                    assert_conservative(
+                        &reference,
+                        &img,
+                        if mode == CullMode::None { 0.99 } else { 0.95 },
+                        &format!("{vol} {mode:?} {weights:?} {az},{el}"),
+                    );
+                    culled.push(st.bricks.culled);
+                }
+                assert!(
+                    culled[2] >= culled[1],
+                    "{vol}: exact culls at least as many as the bound: {culled:?}"
+                );
+            }
+        }
+    }
+}
