@@ -25,5 +25,7 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Render(a) => cmd::render::run(&a, &ui),
         args::Command::Demo(a) => cmd::demo::run(&a, &ui),
         args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
+        args::Command::Bench(args::BenchCommand::Pof(a)) => cmd::pof::bench(&a, &ui),
+        args::Command::Pof(c) => cmd::pof::run(&c, &ui),
     }
 }

@@ -1,4 +1,5 @@
 pub(crate) mod bench;
 pub(crate) mod demo;
 pub(crate) mod info;
+pub(crate) mod pof;
 pub(crate) mod render;
