@@ -255,16 +255,42 @@ struct BrickField {
     n: [usize; 3],
     p: usize,
     base: Vec<f32>,
-    fields: HashMap<[usize; 3], Vec<f32>>,
+    /// Box sizes up to `SMALL` per axis, by `(sx−1) + SMALL·(sy−1) + SMALL²·(sz−1)`: the
+    /// hot path indexes instead of hashing.
+    small: Vec<Option<Vec<f32>>>,
+    large: HashMap<[usize; 3], Vec<f32>>,
+    /// The patches that gave each basis its minimum at the previous direction: tried first,
+    /// they set a tight bound early and let the other patches stop after a few windows.
+    hints: Vec<(usize, usize, usize)>,
 }
 
+const SMALL: usize = 4;
+
 impl BrickField {
-    fn field(&mut self, size: [usize; 3]) -> &[f32] {
-        if !self.fields.contains_key(&size) {
-            let f = self.make(size);
-            self.fields.insert(size, f);
+    fn new(n: [usize; 3], p: usize, base: Vec<f32>) -> Self {
+        BrickField {
+            n,
+            p,
+            base,
+            small: vec![None; SMALL * SMALL * SMALL],
+            large: HashMap::new(),
+            hints: Vec::new(),
         }
-        &self.fields[&size]
+    }
+
+    fn field(&mut self, size: [usize; 3]) -> &[f32] {
+        if size.iter().all(|s| *s <= SMALL) {
+            let k = (size[0] - 1) + SMALL * (size[1] - 1) + SMALL * SMALL * (size[2] - 1);
+            if self.small[k].is_none() {
+                self.small[k] = Some(self.make(size));
+            }
+            return self.small[k].as_deref().expect("just made");
+        }
+        if !self.large.contains_key(&size) {
+            let f = self.make(size);
+            self.large.insert(size, f);
+        }
+        &self.large[&size]
     }
 
     /// `out[c] = min` over the cells `c .. c + size` (clipped to the brick), per basis.
@@ -347,12 +373,7 @@ impl Ctx<'_> {
         if base.iter().all(|t| *t == 0.0) {
             return None;
         }
-        Some(BrickField {
-            n,
-            p,
-            base,
-            fields: HashMap::new(),
-        })
+        Some(BrickField::new(n, p, base))
     }
 
     /// The encoded record of a brick, or `None` when its POF is 0 for every basis.
@@ -429,104 +450,75 @@ impl Ctx<'_> {
     /// The least optical depth (per basis) over every core ray of index direction `d`, and
     /// with sets, every basis's depth at each basis's minimising patch. Writes `funcs`
     /// values: p minima, then for each s the p−1 others at s's argmin patch.
-    #[allow(
-        clippy::cast_possible_truncation,
-        clippy::cast_sign_loss,
-        clippy::cast_precision_loss,
-        clippy::too_many_lines
-    )]
     fn direction_bound(&self, bf: &mut BrickField, d: [f64; 3], out: &mut [f64]) {
         let p = self.p;
-        let n = bf.n.map(|x| x as f64);
-        let step = self.step;
-        let pitch = self.pitch;
         let mut best = vec![f64::INFINITY; p];
         let mut at_best: Vec<Vec<f64>> = vec![Vec::new(); if self.sets { p } else { 0 }];
+        let mut best_patch = vec![(usize::MAX, 0, 0); p];
         let mut sums = vec![0f64; p];
-        let far = |a: usize, e: f64| -> f64 {
-            if d[a] > 1e-12 {
-                (n[a] - e) / d[a]
-            } else if d[a] < -1e-12 {
-                e / -d[a]
-            } else {
-                f64::INFINITY
-            }
-        };
-        // Cell range along one axis of an interval: the cells it overlaps, a point on a
-        // cell border counting for one of them (its value is in both cells' ranges).
-        let cells = |lo: f64, hi: f64, n: usize| -> (usize, usize) {
-            let i0 = (lo + 1e-4).floor().max(0.0) as usize;
-            let i1 = ((hi - 1e-4).ceil() - 1.0).max(0.0) as usize;
-            let i0 = i0.min(n - 1);
-            let i1 = i1.min(n - 1).max(i0);
-            (i0, i1 - i0 + 1)
-        };
-        'faces: for a in 0..3 {
-            if d[a].abs() <= 1e-9 {
-                continue;
-            }
-            let (b, c) = ((a + 1) % 3, (a + 2) % 3);
-            let fa = if d[a] > 0.0 { 0.0 } else { n[a] };
-            let far_a = n[a] / d[a].abs();
-            let kb = (n[b] / pitch).ceil() as usize;
-            let kc = (n[c] / pitch).ceil() as usize;
-            for ib in 0..kb {
-                let (b0, b1) = (ib as f64 * pitch, ((ib + 1) as f64 * pitch).min(n[b]));
-                let (fb0, fb1) = (far(b, b0), far(b, b1));
-                for ic in 0..kc {
-                    let (c0, c1) = (ic as f64 * pitch, ((ic + 1) as f64 * pitch).min(n[c]));
-                    let (fc0, fc1) = (far(c, c0), far(c, c1));
-                    // The exit distance is linear in the entry point on each axis, so its
-                    // extremes over the patch are at the patch's corners.
-                    let chord_max = far_a.min(fb0.max(fb1)).min(fc0.max(fc1));
-                    if chord_max < self.core {
-                        continue;
-                    }
-                    let chord_min = far_a.min(fb0.min(fb1)).min(fc0.min(fc1));
-                    // Every core ray of the patch is at least this long; a hair less guards
-                    // the renderer's f32 span arithmetic.
-                    let windows =
-                        ((self.core.max(chord_min) - 1e-3) / step).floor().max(0.0) as usize;
-                    sums.iter_mut().for_each(|x| *x = 0.0);
-                    for j in 0..windows {
-                        let (t0, t1) = (j as f64 * step, (j + 1) as f64 * step);
-                        let mut lo = [0f64; 3];
-                        let mut hi = [0f64; 3];
-                        let span = |ax: usize| (d[ax] * t0).min(d[ax] * t1);
-                        let span_hi = |ax: usize| (d[ax] * t0).max(d[ax] * t1);
-                        lo[a] = fa + span(a);
-                        hi[a] = fa + span_hi(a);
-                        lo[b] = b0 + span(b);
-                        hi[b] = b1 + span_hi(b);
-                        lo[c] = c0 + span(c);
-                        hi[c] = c1 + span_hi(c);
-                        let (x0, sx) = cells(lo[0], hi[0], bf.n[0]);
-                        let (y0, sy) = cells(lo[1], hi[1], bf.n[1]);
-                        let (z0, sz) = cells(lo[2], hi[2], bf.n[2]);
-                        let (nx, ny) = (bf.n[0], bf.n[1]);
-                        let f = bf.field([sx, sy, sz]);
-                        let at = (x0 + nx * (y0 + ny * z0)) * p;
-                        for i in 0..p {
-                            sums[i] += step * f64::from(f[at + i]);
-                        }
-                        if !self.sets && sums.iter().zip(&best).all(|(s, b)| s >= b) {
-                            break;
+        let n = bf.n.map(|x| x as f64);
+        let counts: [usize; 3] = std::array::from_fn(|a| {
+            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+            let k = (n[a] / self.pitch).ceil() as usize;
+            k
+        });
+        let hints = std::mem::take(&mut bf.hints);
+        let mut visit =
+            |bf: &mut BrickField, patch: (usize, usize, usize), best: &mut Vec<f64>| -> bool {
+                if !self.patch_sums(bf, d, patch, best, &mut sums) {
+                    return false;
+                }
+                for i in 0..p {
+                    if sums[i] < best[i] {
+                        best[i] = sums[i];
+                        best_patch[i] = patch;
+                        if self.sets {
+                            at_best[i].clone_from(&sums);
                         }
                     }
-                    for i in 0..p {
-                        if sums[i] < best[i] {
-                            best[i] = sums[i];
-                            if self.sets {
-                                at_best[i].clone_from(&sums);
+                }
+                !self.sets && best.iter().all(|b| *b <= 0.0)
+            };
+        let mut done = false;
+        for h in &hints {
+            if h.0 < 3 && visit(bf, *h, &mut best) {
+                done = true;
+                break;
+            }
+        }
+        // Patches in groups of GROUP × GROUP: a group's bound is below each of its patches'
+        // (bigger boxes, no more windows), so a group that cannot beat `best` is skipped.
+        const GROUP: usize = 4;
+        let mut group_sums = vec![0f64; p];
+        if !done {
+            'faces: for a in 0..3 {
+                if d[a].abs() <= 1e-9 {
+                    continue;
+                }
+                let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+                for gb in (0..counts[b]).step_by(GROUP) {
+                    for gc in (0..counts[c]).step_by(GROUP) {
+                        let (eb, ec) = ((gb + GROUP).min(counts[b]), (gc + GROUP).min(counts[c]));
+                        if !self.sets {
+                            let rect = self.rect(bf, a, (gb, eb), (gc, ec));
+                            if !self.rect_sums(bf, d, a, rect, &best, &mut group_sums)
+                                || group_sums.iter().zip(&best).all(|(g, b)| g >= b)
+                            {
+                                continue;
                             }
                         }
-                    }
-                    if !self.sets && best.iter().all(|b| *b <= 0.0) {
-                        break 'faces;
+                        for ib in gb..eb {
+                            for ic in gc..ec {
+                                if visit(bf, (a, ib, ic), &mut best) {
+                                    break 'faces;
+                                }
+                            }
+                        }
                     }
                 }
             }
         }
+        bf.hints = best_patch;
         for i in 0..p {
             // No core ray at all in this direction (L longer than the brick): nothing to bound.
             out[i] = if best[i].is_finite() { best[i] } else { 0.0 };
@@ -543,6 +535,124 @@ impl Ctx<'_> {
                 }
             }
         }
+    }
+
+    /// The entry-face rectangle `[b0, b1] × [c0, c1]` of patches `ib0..ib1 × ic0..ic1` on
+    /// face `a`.
+    #[allow(clippy::cast_precision_loss)]
+    fn rect(
+        &self,
+        bf: &BrickField,
+        a: usize,
+        (ib0, ib1): (usize, usize),
+        (ic0, ic1): (usize, usize),
+    ) -> [f64; 4] {
+        let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+        let pitch = self.pitch;
+        [
+            ib0 as f64 * pitch,
+            (ib1 as f64 * pitch).min(bf.n[b] as f64),
+            ic0 as f64 * pitch,
+            (ic1 as f64 * pitch).min(bf.n[c] as f64),
+        ]
+    }
+
+    /// Optical-depth lower bounds (per basis) of every core ray entering through patch
+    /// `(a, ib, ic)` of entry face `a`; false when the patch holds no core ray.
+    fn patch_sums(
+        &self,
+        bf: &mut BrickField,
+        d: [f64; 3],
+        (a, ib, ic): (usize, usize, usize),
+        best: &[f64],
+        sums: &mut [f64],
+    ) -> bool {
+        let rect = self.rect(bf, a, (ib, ib + 1), (ic, ic + 1));
+        self.rect_sums(bf, d, a, rect, best, sums)
+    }
+
+    /// Optical-depth lower bounds (per basis) of every core ray entering face `a` through
+    /// `rect`; false when it holds no core ray. Without sets, stops early once no basis can
+    /// improve on `best` (the sums are then partial but already ≥ `best`).
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        clippy::cast_precision_loss
+    )]
+    fn rect_sums(
+        &self,
+        bf: &mut BrickField,
+        d: [f64; 3],
+        a: usize,
+        [b0, b1, c0, c1]: [f64; 4],
+        best: &[f64],
+        sums: &mut [f64],
+    ) -> bool {
+        let p = self.p;
+        let n = bf.n.map(|x| x as f64);
+        let step = self.step;
+        if d[a].abs() <= 1e-9 {
+            return false;
+        }
+        let far = |ax: usize, e: f64| -> f64 {
+            if d[ax] > 1e-12 {
+                (n[ax] - e) / d[ax]
+            } else if d[ax] < -1e-12 {
+                e / -d[ax]
+            } else {
+                f64::INFINITY
+            }
+        };
+        // Cell range along one axis of an interval: the cells it overlaps, a point on a
+        // cell border counting for one of them (its value is in both cells' ranges).
+        let cells = |lo: f64, hi: f64, n: usize| -> (usize, usize) {
+            let i0 = (lo + 1e-4).floor().max(0.0) as usize;
+            let i1 = ((hi - 1e-4).ceil() - 1.0).max(0.0) as usize;
+            let i0 = i0.min(n - 1);
+            let i1 = i1.min(n - 1).max(i0);
+            (i0, i1 - i0 + 1)
+        };
+        let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+        let fa = if d[a] > 0.0 { 0.0 } else { n[a] };
+        let far_a = n[a] / d[a].abs();
+        let (fb0, fb1, fc0, fc1) = (far(b, b0), far(b, b1), far(c, c0), far(c, c1));
+        // The exit distance is linear in the entry point on each axis, so its extremes over
+        // the patch are at the patch's corners.
+        let chord_max = far_a.min(fb0.max(fb1)).min(fc0.max(fc1));
+        if chord_max < self.core {
+            return false;
+        }
+        let chord_min = far_a.min(fb0.min(fb1)).min(fc0.min(fc1));
+        // Every core ray of the patch is at least this long; a hair less guards the
+        // renderer's f32 span arithmetic.
+        let windows = ((self.core.max(chord_min) - 1e-3) / step).floor().max(0.0) as usize;
+        sums.iter_mut().for_each(|x| *x = 0.0);
+        let (nx, ny) = (bf.n[0], bf.n[1]);
+        for j in 0..windows {
+            let (t0, t1) = (j as f64 * step, (j + 1) as f64 * step);
+            let lo_of = |ax: usize| (d[ax] * t0).min(d[ax] * t1);
+            let hi_of = |ax: usize| (d[ax] * t0).max(d[ax] * t1);
+            let mut lo = [0f64; 3];
+            let mut hi = [0f64; 3];
+            lo[a] = fa + lo_of(a);
+            hi[a] = fa + hi_of(a);
+            lo[b] = b0 + lo_of(b);
+            hi[b] = b1 + hi_of(b);
+            lo[c] = c0 + lo_of(c);
+            hi[c] = c1 + hi_of(c);
+            let (x0, sx) = cells(lo[0], hi[0], bf.n[0]);
+            let (y0, sy) = cells(lo[1], hi[1], bf.n[1]);
+            let (z0, sz) = cells(lo[2], hi[2], bf.n[2]);
+            let f = bf.field([sx, sy, sz]);
+            let at = (x0 + nx * (y0 + ny * z0)) * p;
+            for i in 0..p {
+                sums[i] += step * f64::from(f[at + i]);
+            }
+            if !self.sets && sums.iter().zip(best).all(|(s, b)| s >= b) {
+                break;
+            }
+        }
+        true
     }
 }
 
