@@ -162,13 +162,13 @@ pub(crate) fn run(cmd: &PofCommand, ui: &Ui) -> Result<()> {
     }
 }
 
-struct Built {
-    table: PofTable,
+pub(crate) struct Built {
+    pub(crate) table: PofTable,
     seconds: f64,
     computed_bricks: u64,
 }
 
-fn build_table(
+pub(crate) fn build_table(
     vol: &Volume,
     grid: &BrickGrid,
     tf: &TransferFunction,
