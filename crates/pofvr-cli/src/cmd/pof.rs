@@ -215,7 +215,10 @@ fn build_table(
 #[allow(clippy::cast_precision_loss)]
 fn rate(b: &Built, settings: &PofSettings) -> f64 {
     let views = (settings.views[0] * settings.views[1]) as f64;
-    let core_seconds = b.cpu_seconds.filter(|c| *c > 0.0).unwrap_or(b.seconds * rayon::current_num_threads() as f64);
+    let core_seconds = b
+        .cpu_seconds
+        .filter(|c| *c > 0.0)
+        .unwrap_or(b.seconds * rayon::current_num_threads() as f64);
     b.computed_bricks as f64 * views / core_seconds.max(1e-9)
 }
 
