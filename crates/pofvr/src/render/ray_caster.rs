@@ -194,11 +194,14 @@ impl<'v, T: Voxel> Trilinear<'v, T> {
 
 /// Voxel types whose 8 cell corners the SIMD sample loop gathers.
 pub(crate) trait Gather: Voxel {
+    /// True when [`Gather::corners`] has a faster form for a unit x step (`sx == 1`).
+    const PAIRS: bool = false;
+
     /// Corners `[c000, c001, c010, c011]` (low x) and `[c100, c101, c110, c111]` (high x) of
     /// the cell at `base` (lanes: z fastest, then y), converted to `f32`.
     ///
     /// # Safety
-    /// `base + sx + sy + sz < v.len()`.
+    /// `base + sx + sy + sz < v.len()`, and `sx == 1` where `PAIRS` is true.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     unsafe fn corners(v: &[Self], base: usize, step: [usize; 3]) -> (X86F32x4, X86F32x4) {
@@ -244,6 +247,8 @@ impl Gather for i16 {}
 impl Gather for f32 {}
 
 impl Gather for u8 {
+    const PAIRS: bool = true;
+
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     unsafe fn corners(v: &[u8], base: usize, step: [usize; 3]) -> (X86F32x4, X86F32x4) {
@@ -252,11 +257,7 @@ impl Gather for u8 {
             _mm_setzero_si128, _mm_srli_epi32, _mm_unpacklo_epi8,
         };
         let [sx, sy, sz] = step;
-        if sx != 1 {
-            // A one-voxel x axis (zero step): byte pairs would read past the cell.
-            // SAFETY: forwarded from the caller.
-            return unsafe { corners_generic(v, base, step) };
-        }
+        debug_assert_eq!(sx, 1, "a one-voxel x axis takes corners_generic");
         debug_assert!(base + 1 + sy + sz < v.len());
         // The x neighbours of a corner are adjacent bytes: one 16-bit load per pair.
         // SAFETY: i + 1 ≤ base + 1 + sy + sz < v.len() for every pair (caller).
@@ -430,14 +431,35 @@ impl<'a> RayCaster<'a> {
     /// the RGBA composite each take one vector operation per scalar operation they replace.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    #[allow(clippy::cast_precision_loss, clippy::cast_sign_loss)]
     fn march_sse<T: Gather>(
+        &self,
+        tri: &Trilinear<'_, T>,
+        ray: &IndexRay,
+        range: (i32, i32),
+        acc: &mut [f32; 4],
+    ) -> u64 {
+        // Decided once per ray rather than per sample.
+        if T::PAIRS && tri.step[0] == 1 {
+            self.march_sse_with::<T, true>(tri, ray, range, acc)
+        } else {
+            self.march_sse_with::<T, false>(tri, ray, range, acc)
+        }
+    }
+
+    /// [`RayCaster::march_sse`] with the corner gather fixed: [`Gather::corners`] when
+    /// `PAIRS` (then `T::PAIRS` and a unit x step), [`corners_generic`] otherwise.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    #[allow(clippy::cast_precision_loss, clippy::cast_sign_loss)]
+    fn march_sse_with<T: Gather, const PAIRS: bool>(
         &self,
         tri: &Trilinear<'_, T>,
         ray: &IndexRay,
         (k0, k1): (i32, i32),
         acc: &mut [f32; 4],
     ) -> u64 {
+        debug_assert!(!PAIRS || (T::PAIRS && tri.step[0] == 1));
+        let (v, steps) = (tri.v, tri.step);
         use std::arch::x86_64::{
             _mm_add_ps, _mm_cvtepi32_ps, _mm_cvtsi128_si32, _mm_cvtss_f32, _mm_cvttps_epi32,
             _mm_loadu_ps, _mm_max_ps, _mm_min_ps, _mm_movehl_ps, _mm_mul_ps, _mm_set1_ps,
@@ -487,7 +509,11 @@ impl<'a> RayCaster<'a> {
                 debug_assert!(base + tri.step.iter().sum::<usize>() < tri.v.len());
                 // SAFETY: each axis index is clamped to [0, dims-2] (or 0 with a zero step on a
                 // one-voxel axis), so base plus any combination of steps stays inside the volume.
-                let (lo, hi) = T::corners(tri.v, base, tri.step);
+                let (lo, hi) = if PAIRS {
+                    T::corners(v, base, steps)
+                } else {
+                    corners_generic(v, base, steps)
+                };
                 // [c00, c01, c10, c11] = lo + (hi − lo)·fx
                 let c = _mm_add_ps(
                     lo,
