@@ -460,6 +460,7 @@ impl<'a> RayCaster<'a> {
     ) -> u64 {
         debug_assert!(!PAIRS || (T::PAIRS && tri.step[0] == 1));
         let (v, steps) = (tri.v, tri.step);
+        let cls = self.cls.view();
         use std::arch::x86_64::{
             _mm_add_ps, _mm_cvtepi32_ps, _mm_cvtsi128_si32, _mm_cvtss_f32, _mm_cvttps_epi32,
             _mm_loadu_ps, _mm_max_ps, _mm_min_ps, _mm_movehl_ps, _mm_mul_ps, _mm_set1_ps,
@@ -530,7 +531,7 @@ impl<'a> RayCaster<'a> {
                 let c0 = _mm_cvtss_f32(c);
                 let c1 = _mm_cvtss_f32(_mm_shuffle_ps::<0x55>(c, c));
                 let fz = _mm_cvtss_f32(_mm_shuffle_ps::<0xAA>(f, f));
-                let s = self.cls.sample(c0 + (c1 - c0) * fz);
+                let s = cls.sample(c0 + (c1 - c0) * fz);
                 n += 1;
                 if s[3] == 0.0 {
                     continue;
