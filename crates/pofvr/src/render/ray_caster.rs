@@ -503,9 +503,10 @@ impl<'a> RayCaster<'a> {
                 let x = _mm_min_ps(x, max);
                 let i = _mm_cvttps_epi32(_mm_min_ps(x, last));
                 let f = _mm_sub_ps(x, _mm_cvtepi32_ps(i));
-                let i0 = _mm_cvtsi128_si32(i) as usize;
-                let i1 = _mm_cvtsi128_si32(_mm_shuffle_epi32::<0x55>(i)) as usize;
-                let i2 = _mm_cvtsi128_si32(_mm_shuffle_epi32::<0xAA>(i)) as usize;
+                // Non-negative: zero extension (free) rather than sign extension.
+                let i0 = _mm_cvtsi128_si32(i) as u32 as usize;
+                let i1 = _mm_cvtsi128_si32(_mm_shuffle_epi32::<0x55>(i)) as u32 as usize;
+                let i2 = _mm_cvtsi128_si32(_mm_shuffle_epi32::<0xAA>(i)) as u32 as usize;
                 let base = i0 + i1 * s1 + i2 * s2;
                 debug_assert!(base + tri.step.iter().sum::<usize>() < tri.v.len());
                 // SAFETY: each axis index is clamped to [0, dims-2] (or 0 with a zero step on a

@@ -426,8 +426,9 @@ impl ClassifierView<'_> {
         // Not clamp: `max` turns a NaN into 0, which keeps the unchecked cast sound.
         #[allow(clippy::manual_clamp)]
         let x = ((v - self.lo) * self.scale).max(0.0).min(BIN_MAX);
-        // SAFETY: x is in [0, TF_BINS-1]; `max` maps NaN to 0.
-        let b = unsafe { x.to_int_unchecked::<u32>() } as usize;
+        // SAFETY: x is in [0, TF_BINS-1]; `max` maps NaN to 0. (Through i32, whose
+        // conversion zero-extends for free, unlike u32's.)
+        let b = unsafe { x.to_int_unchecked::<i32>() } as u32 as usize;
         debug_assert_eq!(self.rgba.len(), TF_BINS);
         // SAFETY: `rgba` always holds TF_BINS entries (built by `SampledTf::classify`, the
         // only maker of a `Classifier`, whose `view` is the only maker of this) and `b` is
