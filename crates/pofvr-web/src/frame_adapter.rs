@@ -164,7 +164,9 @@ mod tests {
             ..FrameOptions::default()
         };
         assert!(shared.render(None, &cam, &opts, &look).is_err());
-        let e = load_pofs(Path::new("missing.pof"), &shared.read()).unwrap_err();
+        let Err(e) = load_pofs(Path::new("missing.pof"), &shared.read()) else {
+            panic!("a missing POF file must be an error");
+        };
         assert!(e.contains("missing.pof"), "{e}");
     }
 }
