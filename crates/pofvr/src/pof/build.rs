@@ -477,7 +477,8 @@ impl Ctx<'_> {
                         }
                     }
                 }
-                !self.sets && best.iter().all(|b| *b <= 0.0)
+                // With sets too: every basis's minimising patch has been summed in full.
+                best.iter().all(|b| *b <= 0.0)
             };
         let mut done = false;
         for h in &hints {
@@ -499,7 +500,7 @@ impl Ctx<'_> {
                 for gb in (0..counts[b]).step_by(GROUP) {
                     for gc in (0..counts[c]).step_by(GROUP) {
                         let (eb, ec) = ((gb + GROUP).min(counts[b]), (gc + GROUP).min(counts[c]));
-                        if !self.sets {
+                        {
                             let rect = self.rect(bf, a, (gb, eb), (gc, ec));
                             if !self.rect_sums(bf, d, a, rect, &best, &mut group_sums)
                                 || group_sums.iter().zip(&best).all(|(g, b)| g >= b)
@@ -572,8 +573,8 @@ impl Ctx<'_> {
     }
 
     /// Optical-depth lower bounds (per basis) of every core ray entering face `a` through
-    /// `rect`; false when it holds no core ray. Without sets, stops early once no basis can
-    /// improve on `best` (the sums are then partial but already ≥ `best`).
+    /// `rect`; false when it holds no core ray. Stops early once no basis can improve on
+    /// `best` (the sums are then partial but already ≥ `best`).
     #[allow(
         clippy::cast_possible_truncation,
         clippy::cast_sign_loss,
@@ -648,7 +649,9 @@ impl Ctx<'_> {
             for i in 0..p {
                 sums[i] += step * f64::from(f[at + i]);
             }
-            if !self.sets && sums.iter().zip(best).all(|(s, b)| s >= b) {
+            // A patch stopped here improves no basis, so every patch that does (and whose
+            // sums the sets keep) was summed in full.
+            if sums.iter().zip(best).all(|(s, b)| s >= b) {
                 break;
             }
         }
