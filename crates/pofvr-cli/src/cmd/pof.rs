@@ -376,6 +376,8 @@ struct CheckSummary {
     worst_excess: f32,
     mean_lookup: f64,
     mean_true_min: f64,
+    /// Share of footprint pixels whose ray spans at least L: where the POF is composited.
+    core_share: f64,
 }
 
 fn check_table(
@@ -412,7 +414,7 @@ fn check_table(
         })
         .collect();
     let bar = ui.bar(n as u64, "brute-force views");
-    let results: Vec<(f32, Option<f32>)> = probes
+    let results: Vec<(f32, Option<f32>, usize, usize)> = probes
         .par_iter()
         .map(|(id, p)| {
             let r = core_min(
@@ -428,7 +430,7 @@ fn check_table(
             );
             let a = table.opacity(*id, p.dir, &tf.weights, PofMode::Conservative);
             bar.inc(1);
-            (a, r.core_min)
+            (a, r.core_min, r.core_pixels, r.footprint_pixels)
         })
         .collect();
     bar.finish_and_clear();
@@ -436,7 +438,10 @@ fn check_table(
         views: n,
         ..CheckSummary::default()
     };
-    for (a, m) in results {
+    let (mut core_px, mut foot_px) = (0usize, 0usize);
+    for (a, m, c, f) in results {
+        core_px += c;
+        foot_px += f;
         let Some(m) = m else { continue };
         s.with_core += 1;
         s.mean_lookup += f64::from(a);
@@ -450,6 +455,10 @@ fn check_table(
     let k = s.with_core.max(1) as f64;
     s.mean_lookup /= k;
     s.mean_true_min /= k;
+    #[allow(clippy::cast_precision_loss)]
+    {
+        s.core_share = core_px as f64 / foot_px.max(1) as f64;
+    }
     Ok(s)
 }
 
@@ -460,14 +469,15 @@ fn check(a: &PofCheckArgs, ui: &Ui) -> Result<()> {
     let table = PofTable::load(&a.pof, &vol, &grid, &tf)?;
     let s = check_table(&vol, &grid, &tf, &table, a.views, a.seed, ui)?;
     println!(
-        "{}: {} views ({} with a core), {} where the lookup exceeds the brute-force core minimum (worst by {:.2e}); mean lookup {:.4}, mean true minimum {:.4}",
+        "{}: {} views ({} with a core), {} where the lookup exceeds the brute-force core minimum (worst by {:.2e}); mean lookup {:.4}, mean true minimum {:.4}; core pixels {:.1}% of the footprint",
         a.pof.display(),
         s.views,
         s.with_core,
         s.violations,
         s.worst_excess,
         s.mean_lookup,
-        s.mean_true_min
+        s.mean_true_min,
+        100.0 * s.core_share
     );
     if s.violations > 0 {
         bail!(

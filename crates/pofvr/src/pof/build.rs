@@ -278,52 +278,83 @@ impl BrickField {
         }
     }
 
+    fn small_index(size: [usize; 3]) -> Option<usize> {
+        size.iter()
+            .all(|s| *s <= SMALL)
+            .then(|| (size[0] - 1) + SMALL * (size[1] - 1) + SMALL * SMALL * (size[2] - 1))
+    }
+
+    fn get(&self, size: [usize; 3]) -> Option<&[f32]> {
+        match Self::small_index(size) {
+            Some(k) => self.small[k].as_deref(),
+            None => self.large.get(&size).map(Vec::as_slice),
+        }
+    }
+
     fn field(&mut self, size: [usize; 3]) -> &[f32] {
-        if size.iter().all(|s| *s <= SMALL) {
-            let k = (size[0] - 1) + SMALL * (size[1] - 1) + SMALL * SMALL * (size[2] - 1);
+        if let Some(k) = Self::small_index(size) {
             if self.small[k].is_none() {
-                self.small[k] = Some(self.make(size));
+                self.ensure(size);
             }
             return self.small[k].as_deref().expect("just made");
         }
-        if !self.large.contains_key(&size) {
-            let f = self.make(size);
-            self.large.insert(size, f);
-        }
+        self.ensure(size);
         &self.large[&size]
     }
 
-    /// `out[c] = min` over the cells `c .. c + size` (clipped to the brick), per basis.
-    fn make(&self, size: [usize; 3]) -> Vec<f32> {
-        let [nx, ny, nz] = self.n;
-        let p = self.p;
-        let mut cur = self.base.clone();
-        let strides = [p, nx * p, nx * ny * p];
-        for a in 0..3 {
-            if size[a] <= 1 {
-                continue;
-            }
-            let mut next = cur.clone();
-            for z in 0..nz {
-                for y in 0..ny {
-                    for x in 0..nx {
-                        let c = [x, y, z];
-                        let at = x * p + y * strides[1] + z * strides[2];
-                        for k in 1..size[a] {
-                            if c[a] + k >= self.n[a] {
-                                break;
-                            }
-                            let o = at + k * strides[a];
-                            for i in 0..p {
-                                next[at + i] = next[at + i].min(cur[o + i]);
-                            }
+    /// Makes the field of box size `size`: `out[c] = min` over the cells `c .. c + size`
+    /// (clipped to the brick), per basis. One pass per field: the box is the box one
+    /// shorter along its last long axis, plus the one-cell slab at its far end.
+    fn ensure(&mut self, size: [usize; 3]) {
+        if self.get(size).is_some() {
+            return;
+        }
+        let made = match (0..3).rev().find(|a| size[*a] > 1) {
+            None => self.base.clone(),
+            Some(a) => {
+                let (mut shorter, mut slab) = (size, size);
+                shorter[a] -= 1;
+                slab[a] = 1;
+                self.ensure(shorter);
+                self.ensure(slab);
+                let (m1, m2) = (
+                    self.get(shorter).expect("made"),
+                    self.get(slab).expect("made"),
+                );
+                let [nx, ny, nz] = self.n;
+                let p = self.p;
+                let stride = [p, nx * p, nx * ny * p][a];
+                let off = (size[a] - 1) * stride;
+                let mut out = m1.to_vec();
+                for z in 0..nz {
+                    if a == 2 && z + size[2] > nz {
+                        break;
+                    }
+                    for y in 0..ny {
+                        if a == 1 && y + size[1] > ny {
+                            break;
+                        }
+                        let xs = if a == 0 {
+                            nx.saturating_sub(size[0] - 1)
+                        } else {
+                            nx
+                        };
+                        let at = (y + ny * z) * nx * p;
+                        let row = &mut out[at..at + xs * p];
+                        for (o, v) in row.iter_mut().zip(&m2[at + off..at + off + xs * p]) {
+                            *o = o.min(*v);
                         }
                     }
                 }
+                out
             }
-            cur = next;
+        };
+        match Self::small_index(size) {
+            Some(k) => self.small[k] = Some(made),
+            None => {
+                self.large.insert(size, made);
+            }
         }
-        cur
     }
 }
 
@@ -477,7 +508,8 @@ impl Ctx<'_> {
                         }
                     }
                 }
-                !self.sets && best.iter().all(|b| *b <= 0.0)
+                // With sets too: every basis's minimising patch has been summed in full.
+                best.iter().all(|b| *b <= 0.0)
             };
         let mut done = false;
         for h in &hints {
@@ -499,7 +531,7 @@ impl Ctx<'_> {
                 for gb in (0..counts[b]).step_by(GROUP) {
                     for gc in (0..counts[c]).step_by(GROUP) {
                         let (eb, ec) = ((gb + GROUP).min(counts[b]), (gc + GROUP).min(counts[c]));
-                        if !self.sets {
+                        {
                             let rect = self.rect(bf, a, (gb, eb), (gc, ec));
                             if !self.rect_sums(bf, d, a, rect, &best, &mut group_sums)
                                 || group_sums.iter().zip(&best).all(|(g, b)| g >= b)
@@ -572,8 +604,8 @@ impl Ctx<'_> {
     }
 
     /// Optical-depth lower bounds (per basis) of every core ray entering face `a` through
-    /// `rect`; false when it holds no core ray. Without sets, stops early once no basis can
-    /// improve on `best` (the sums are then partial but already ≥ `best`).
+    /// `rect`; false when it holds no core ray. Stops early once no basis can improve on
+    /// `best` (the sums are then partial but already ≥ `best`).
     #[allow(
         clippy::cast_possible_truncation,
         clippy::cast_sign_loss,
@@ -606,8 +638,13 @@ impl Ctx<'_> {
         // Cell range along one axis of an interval: the cells it overlaps, a point on a
         // cell border counting for one of them (its value is in both cells' ranges).
         let cells = |lo: f64, hi: f64, n: usize| -> (usize, usize) {
-            let i0 = (lo + 1e-4).floor().max(0.0) as usize;
-            let i1 = ((hi - 1e-4).ceil() - 1.0).max(0.0) as usize;
+            // Truncation of a shifted positive number is floor without a libm call; the
+            // coordinates stay within a few bricks of the origin.
+            const SHIFT: f64 = 1_048_576.0;
+            let floor = |x: f64| (x + SHIFT) as i64 - SHIFT as i64;
+            let i0 = floor(lo + 1e-4).max(0) as usize;
+            // ceil(x) − 1 = −floor(−x) − 1
+            let i1 = (-floor(-(hi - 1e-4)) - 1).max(0) as usize;
             let i0 = i0.min(n - 1);
             let i1 = i1.min(n - 1).max(i0);
             (i0, i1 - i0 + 1)
@@ -648,7 +685,9 @@ impl Ctx<'_> {
             for i in 0..p {
                 sums[i] += step * f64::from(f[at + i]);
             }
-            if !self.sets && sums.iter().zip(best).all(|(s, b)| s >= b) {
+            // A patch stopped here improves no basis, so every patch that does (and whose
+            // sums the sets keep) was summed in full.
+            if sums.iter().zip(best).all(|(s, b)| s >= b) {
                 break;
             }
         }

@@ -175,8 +175,15 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
     let data_offset = to_usize(u64_at(120), "data offset")?;
     let data_len = to_usize(u64_at(128), "data length")?;
     let record_len = to_usize(u64_at(136), "record length")?;
-    if meta.views[0] == 0 || meta.views[1] == 0 || meta.basis_count == 0 {
-        return Err(fmt("empty view grid or no bases".into()));
+    // Bounds keep every size computed below far from overflow, whatever the header says.
+    if !(1..=4096).contains(&meta.views[0]) || !(1..=4096).contains(&meta.views[1]) {
+        return Err(fmt(format!("view grid {:?} outside 1..=4096", meta.views)));
+    }
+    if !(1..=1024).contains(&meta.basis_count) {
+        return Err(fmt(format!(
+            "{} bases, expected 1..=1024",
+            meta.basis_count
+        )));
     }
     let p = meta.basis_count as usize;
     let funcs = p + if meta.sets { p * (p - 1) } else { 0 };

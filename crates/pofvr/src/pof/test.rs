@@ -545,3 +545,38 @@ fn interrupted_build_resumes_from_the_partial_file() {
     .unwrap();
     assert_eq!(third.meta().views, [10, 10]);
 }
+
+#[test]
+fn real_anisotropic_ct_lookups_never_exceed_brute_force() {
+    // Optional: the catalogue's quarter-resolution CT head (i16, spacing 3.2×3.2×1.5 mm),
+    // the case where index and world directions differ.
+    let path =
+        std::path::Path::new("/work/shared/data/headsq_quarter/headsq_quarter_64x64x93_int16.raw");
+    if !path.exists() {
+        eprintln!("skipped: {} is not present", path.display());
+        return;
+    }
+    let mut spec = crate::volume::RawSpec::new([64, 64, 93], crate::volume::DataType::I16);
+    spec.spacing = [3.2, 3.2, 1.5];
+    let volume = crate::volume::raw::open(path, &spec).unwrap();
+    let tf = TransferFunction::from_json(
+        r#"{"bases":[{"name":"head","opacity":[[300,0],[500,0.05],[4000,0.05]]},
+                     {"name":"bone","opacity":[[1400,0],[1800,0.3],[4000,0.3]]}],
+            "color":[[0,0,0,0],[4000,1,1,1]]}"#,
+        "test",
+    )
+    .unwrap();
+    let s = scene(volume, tf);
+    let t = table(&s, &small_views());
+    assert!(
+        t.stored_bricks() > 5,
+        "{} bricks with a POF",
+        t.stored_bricks()
+    );
+    let mut rng = seeded_rng();
+    let (n, ratio) = check_conservative(&s, &t, 60, &mut rng, &|r| {
+        vec![r.gen_range(0.0..2.0), r.gen_range(0.0..2.0)]
+    });
+    eprintln!("headsq: {n} views, mean lookup/brute-force optical depth {ratio:.3}");
+    assert!(n > 40);
+}
