@@ -278,6 +278,12 @@ impl MpiCommunicator {
         }));
     }
 
+    /// Prints `pofvr: rank R aborted: REASON` to stderr and ends every process of the job
+    /// through `MPI_Abort` with [`ABORT_CODE`].
+    pub fn abort_job(&self, reason: &str) -> ! {
+        abort_job(self.rank, reason)
+    }
+
     fn lock(&self) -> MutexGuard<'_, Inner> {
         self.inner.lock().unwrap_or_else(PoisonError::into_inner)
     }
