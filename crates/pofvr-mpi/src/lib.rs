@@ -22,8 +22,9 @@
 //!   every later call and, at drop, waited for with a deadline while still receiving (so two
 //!   ranks finishing with rendezvous sends to each other cannot deadlock).
 //! - **Timeouts.** MPI has no timed receive, so [`Communicator::recv`] polls with
-//!   `MPI_Improbe` (rsmpi's `immediate_matched_probe`), backing off from 10 µs to 1 ms between
-//!   polls, until its deadline, then returns [`CommError::Timeout`] naming rank and tag.
+//!   `MPI_Improbe` (rsmpi's `immediate_matched_probe`) until its deadline: without sleeping
+//!   while traffic flows (rendezvous transfers progress only when both sides call MPI), then
+//!   with sleeps growing to 250 µs, then returns [`CommError::Timeout`] naming rank and tag.
 //! - **Faults.** [`Communicator::abort`] prints `pofvr: rank R aborted: REASON` to stderr and
 //!   calls `MPI_Abort` with [`ABORT_CODE`], which ends every process of the job with a
 //!   non-zero exit status; [`install_panic_abort`] makes a panic on any thread do the same.
@@ -118,17 +119,16 @@ struct Envelope {
     bytes: Vec<u8>,
 }
 
-/// An `MPI_Isend` in flight: the request and the buffer it reads from.
-struct Pending {
-    request: ffi::MPI_Request,
-    /// Read by MPI until the request completes; never touched by Rust meanwhile.
-    _buffer: Vec<u8>,
-}
-
 /// Everything that needs MPI; only touched under the mutex.
 struct Inner {
     world: SimpleCommunicator,
-    pending: Vec<Pending>,
+    /// Requests of `MPI_Isend`s in flight, contiguous for `MPI_Testsome`.
+    requests: Vec<ffi::MPI_Request>,
+    /// `buffers[i]` is read by MPI until `requests[i]` completes; Rust never touches it
+    /// meanwhile.
+    buffers: Vec<Vec<u8>>,
+    /// Scratch for `MPI_Testsome`'s completed indices.
+    done: Vec<i32>,
     mailbox: VecDeque<Envelope>,
 }
 
@@ -139,22 +139,58 @@ struct Inner {
 unsafe impl Send for Inner {}
 
 impl Inner {
-    /// Frees the requests of completed sends (and their buffers).
+    /// Frees the requests of completed sends (and their buffers), with one `MPI_Testsome`
+    /// over all of them: testing each with `MPI_Test` would run MPI's progress engine once
+    /// per request, which made a frame's thousands of fragments cost seconds.
     fn reap(&mut self) {
-        self.pending.retain_mut(|p| {
-            let mut done: i32 = 0;
-            // SAFETY: `p.request` is an active request from `MPI_Isend` (completed requests
-            // are removed right here, so it is never tested after MPI set it to
-            // MPI_REQUEST_NULL); `done` is a valid out-pointer and the status is ignored.
-            unsafe {
-                ffi::MPI_Test(&mut p.request, &mut done, ffi::RSMPI_STATUS_IGNORE);
+        if self.requests.is_empty() {
+            return;
+        }
+        let n = self.requests.len();
+        self.done.resize(n, 0);
+        let count = i32::try_from(n).expect("fewer than 2³¹ sends in flight");
+        let mut completed: i32 = 0;
+        // SAFETY: `requests` holds `count` active requests from MPI_Isend (completed ones are
+        // removed below before the next call, so none is MPI_REQUEST_NULL), `done` has room
+        // for `count` indices, `completed` is a valid out-pointer and the statuses are
+        // ignored; MPI calls are serialised by the lock that guards `self`.
+        unsafe {
+            ffi::MPI_Testsome(
+                count,
+                self.requests.as_mut_ptr(),
+                &mut completed,
+                self.done.as_mut_ptr(),
+                ffi::RSMPI_STATUSES_IGNORE,
+            );
+        }
+        let Ok(completed) = usize::try_from(completed) else {
+            return; // MPI_UNDEFINED: no active requests.
+        };
+        if completed == 0 {
+            return;
+        }
+        let mut finished = vec![false; n];
+        for &i in &self.done[..completed] {
+            if let Some(f) = usize::try_from(i).ok().and_then(|i| finished.get_mut(i)) {
+                *f = true;
             }
-            done == 0
+        }
+        let mut k = 0;
+        self.requests.retain(|_| {
+            k += 1;
+            !finished[k - 1]
+        });
+        let mut k = 0;
+        self.buffers.retain(|_| {
+            k += 1;
+            !finished[k - 1]
         });
     }
 
-    /// Moves every message that has arrived into the mailbox, in arrival order.
-    fn pump(&mut self) {
+    /// Moves every message that has arrived into the mailbox, in arrival order; returns how
+    /// many arrived.
+    fn pump(&mut self) -> usize {
+        let mut arrived = 0;
         while let Some(probed) = self
             .world
             .any_process()
@@ -171,7 +207,9 @@ impl Inner {
                 tag: u32::from_le_bytes(tag),
                 bytes: body.to_vec(),
             });
+            arrived += 1;
         }
+        arrived
     }
 
     fn take(&mut self, from: Option<Rank>, tag: u32) -> Option<Envelope> {
@@ -232,7 +270,9 @@ impl MpiCommunicator {
             bytes_sent: AtomicU64::new(0),
             inner: Mutex::new(Inner {
                 world,
-                pending: Vec::new(),
+                requests: Vec::new(),
+                buffers: Vec::new(),
+                done: Vec::new(),
                 mailbox: VecDeque::new(),
             }),
             _universe: universe,
@@ -250,7 +290,7 @@ impl MpiCommunicator {
     pub fn pending_sends(&self) -> usize {
         let mut inner = self.lock();
         inner.reap();
-        inner.pending.len()
+        inner.requests.len()
     }
 
     /// Makes a panic on any thread of this process abort the whole MPI job (after the usual
@@ -322,6 +362,20 @@ fn abort_job(rank: Rank, reason: &str) -> ! {
     std::process::exit(ABORT_CODE);
 }
 
+/// Pause after the `idle`-th poll in a row that saw no traffic: none (yield) for the first
+/// [`SPIN_POLLS`], then sleeps doubling from 16 µs to [`MAX_NAP`].
+fn poll_nap(idle: u32) -> Option<Duration> {
+    let past = idle.checked_sub(SPIN_POLLS)?;
+    Some((Duration::from_micros(16) * 2u32.saturating_pow(past.min(8))).min(MAX_NAP))
+}
+
+/// Polls without sleeping while a wait is young.
+const SPIN_POLLS: u32 = 200;
+
+/// Longest sleep between polls: bounds the latency a rendezvous transfer or a late message
+/// pays, while a long wait (for a peer still ray-casting) costs little CPU.
+const MAX_NAP: Duration = Duration::from_micros(250);
+
 impl Communicator for MpiCommunicator {
     fn rank(&self) -> Rank {
         self.rank
@@ -363,7 +417,7 @@ impl Communicator for MpiCommunicator {
         // SAFETY: MPI_REQUEST_NULL is a valid initial value for an out-parameter.
         let mut request = unsafe { ffi::RSMPI_REQUEST_NULL };
         // SAFETY: `buffer` holds `count` initialised bytes and is moved, unchanged, into
-        // `inner.pending` below, where it stays (its heap allocation does not move) until
+        // `inner.buffers` below, where it stays (its heap allocation does not move) until
         // MPI_Test reports the request complete or Drop waits for it; the datatype,
         // destination (checked < size), tag and communicator are valid, and MPI calls are
         // serialised by the lock held in `inner`.
@@ -378,10 +432,8 @@ impl Communicator for MpiCommunicator {
                 &mut request,
             );
         }
-        inner.pending.push(Pending {
-            request,
-            _buffer: buffer,
-        });
+        inner.requests.push(request);
+        inner.buffers.push(buffer);
         Ok(())
     }
 
@@ -396,14 +448,20 @@ impl Communicator for MpiCommunicator {
         }
         let start = Instant::now();
         let deadline = start.checked_add(timeout);
-        let mut nap = Duration::from_micros(10);
+        let mut idle_polls = 0u32;
         loop {
             {
                 let mut inner = self.lock();
-                inner.pump();
+                let pending = inner.requests.len();
+                let arrived = inner.pump();
                 inner.reap();
                 if let Some(e) = inner.take(from, tag) {
                     return Ok((e.from, e.bytes));
+                }
+                // Traffic is flowing (a rendezvous transfer needs both sides to call MPI):
+                // keep polling at full rate.
+                if arrived > 0 || inner.requests.len() < pending {
+                    idle_polls = 0;
                 }
             }
             let left = deadline.map_or(Duration::MAX, |d| {
@@ -417,8 +475,11 @@ impl Communicator for MpiCommunicator {
                     waited: start.elapsed(),
                 });
             }
-            std::thread::sleep(nap.min(left));
-            nap = (nap * 2).min(Duration::from_millis(1));
+            idle_polls = idle_polls.saturating_add(1);
+            match poll_nap(idle_polls) {
+                None => std::thread::yield_now(),
+                Some(nap) => std::thread::sleep(nap.min(left)),
+            }
         }
     }
 
@@ -441,11 +502,11 @@ impl Drop for MpiCommunicator {
         let deadline = Instant::now() + DRAIN_TIMEOUT;
         loop {
             inner.reap();
-            if inner.pending.is_empty() {
+            if inner.requests.is_empty() {
                 break;
             }
             if Instant::now() >= deadline {
-                let n = inner.pending.len();
+                let n = inner.requests.len();
                 abort_job(
                     rank,
                     &format!("{n} sends not received after {DRAIN_TIMEOUT:?} at shutdown"),

@@ -114,3 +114,8 @@ fn abort_ends_every_rank_non_zero() {
 fn panic_on_a_worker_thread_aborts_the_job() {
     fails_fast("panic", "panic: deliberate panic from the selftest");
 }
+
+#[test]
+fn thousands_of_fragment_sized_messages_arrive_in_order() {
+    passes("flood");
+}

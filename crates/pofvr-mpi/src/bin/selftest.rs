@@ -28,8 +28,9 @@ fn main() -> ExitCode {
         "exchange" => exchange(&comm),
         "abort" => abort(&comm),
         "panic" => panic(&comm),
+        "flood" => flood(&comm),
         other => Err(format!(
-            "unknown scenario {other:?} (pingpong, gather, timeout, exchange, abort, panic)"
+            "unknown scenario {other:?} (pingpong, gather, timeout, exchange, flood, abort, panic)"
         )),
     };
     match result {
@@ -247,4 +248,37 @@ fn panic(comm: &MpiCommunicator) -> Result<(), String> {
     }
     let r = comm.recv(None, 77, Duration::from_secs(600));
     Err(format!("survived the panic: {r:?}"))
+}
+
+/// Every other rank sends 2000 messages of 1 to 40 KiB to rank 0 (as fragments go to tile
+/// owners), which takes them sender by sender; prints the rate.
+fn flood(comm: &MpiCommunicator) -> Result<(), String> {
+    let (me, n) = (comm.rank().index(), comm.size());
+    let count = 2000;
+    let len = |i: usize| 1024 + (i * 7919) % (40 << 10);
+    comm.barrier(T).map_err(|e| e.to_string())?;
+    let t = Instant::now();
+    if me == 0 {
+        for from in 1..n {
+            for i in 0..count {
+                let (_, b) = comm
+                    .recv(Some(rank(from)), 3, T)
+                    .map_err(|e| e.to_string())?;
+                expect_eq("flood length", b.len(), len(i))?;
+            }
+        }
+        let s = t.elapsed().as_secs_f64();
+        let msgs = (count * (n - 1)) as f64;
+        eprintln!(
+            "flood: {msgs} messages in {:.1} ms, {:.1} µs each",
+            s * 1e3,
+            s * 1e6 / msgs.max(1.0)
+        );
+    } else {
+        for i in 0..count {
+            comm.send(Rank(0), 3, payload(me, 0, i, len(i)))
+                .map_err(|e| e.to_string())?;
+        }
+    }
+    comm.barrier(T).map_err(|e| e.to_string())
 }
