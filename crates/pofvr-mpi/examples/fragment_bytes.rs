@@ -94,7 +94,7 @@ fn main() {
         view[0],
         view[1]
     );
-    println!("ranks  sparse_sent  dense_fragments  full_tiles  saved_vs_dense  saved_vs_full  gather_bytes");
+    println!("ranks  sparse_sent  dense_fragments  one_tile_per_pair  saved_vs_dense  saved_vs_pair_tiles  gather_bytes");
     for n in ranks {
         let assignment = BrickAssignment::new(job.grid.counts(), Curve::Hilbert, n).expect("deal");
         let layout =
@@ -140,7 +140,7 @@ fn main() {
         #[allow(clippy::cast_precision_loss)]
         let pct = |x: u64, of: u64| 100.0 * (1.0 - x as f64 / of.max(1) as f64);
         println!(
-            "{n:>5}  {sparse:>11}  {dense:>15}  {full:>10}  {:>13.1}%  {:>12.1}%  {gather:>12}",
+            "{n:>5}  {sparse:>11}  {dense:>15}  {full:>17}  {:>13.1}%  {:>18.1}%  {gather:>12}",
             pct(sparse, dense),
             pct(sparse, full)
         );

@@ -91,26 +91,14 @@ impl fmt::Display for MpiInitError {
 
 impl std::error::Error for MpiInitError {}
 
-/// True when this process was started by an MPI launcher (`mpirun`/`mpiexec` of OpenMPI,
-/// MPICH or Intel MPI, or `srun` with PMI/PMIx), judged from the environment before MPI is
-/// initialised. A plain `pofvr` run answers false and never touches MPI.
+/// True when this process was started by an MPI launcher (`mpirun`/`mpiexec` of OpenMPI or
+/// MPICH/Hydra, or a PMIx launcher such as `srun --mpi=pmix`), judged from the environment
+/// before MPI is initialised. A plain `pofvr` run answers false and never touches MPI.
 #[must_use]
 pub fn launched_by_mpi() -> bool {
-    launcher_world_size().is_some()
-}
-
-/// The world size the launcher announced in the environment, if any.
-#[must_use]
-pub fn launcher_world_size() -> Option<usize> {
-    [
-        "OMPI_COMM_WORLD_SIZE",
-        "PMI_SIZE",
-        "PMIX_SIZE",
-        "MPI_LOCALNRANKS",
-    ]
-    .iter()
-    .find_map(|k| std::env::var(k).ok()?.trim().parse::<usize>().ok())
-    .or_else(|| std::env::var_os("PMIX_RANK").map(|_| 1))
+    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"]
+        .iter()
+        .any(|k| std::env::var_os(k).is_some())
 }
 
 struct Envelope {
