@@ -33,6 +33,9 @@ pub(crate) enum Command {
     /// Measure performance and write a report.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Plenoptic Opacity Functions: build, inspect and check .pof files.
+    #[command(subcommand)]
+    Pof(crate::cmd::pof::PofCommand),
 }
 
 /// Where the volume comes from.
@@ -184,6 +187,9 @@ pub(crate) struct FrameArgs {
     /// renderer that culled frames are checked against).
     #[arg(long, conflicts_with = "cull")]
     pub(crate) whole: bool,
+    /// Precomputed POFs (`pofvr pof build`) for --cull pof and pof-set.
+    #[arg(long, value_name = "FILE.pof")]
+    pub(crate) pof: Option<PathBuf>,
     /// Ranks to render with, as threads of this process (the paper's parallel algorithm;
     /// the frame is identical for any count).
     /// > default: 1
@@ -215,6 +221,9 @@ pub(crate) enum BenchCommand {
     /// Samples per second per core of the ray caster, with and without early termination,
     /// axis-aligned and oblique, on the phantom and on given volumes.
     Render(BenchRenderArgs),
+    /// POF precompute: brick-views per second per core and bytes per brick per basis for
+    /// each encoding, on the phantom and on given volumes.
+    Pof(crate::cmd::pof::BenchPofArgs),
 }
 
 #[derive(Args, Debug)]

@@ -124,15 +124,23 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     let cam = resolve::camera(&a.view, &vol)?;
     let job = RenderJob::new(vol, tf, a.volume.brick, resolve::settings(&a.view))?;
     sp.set_message("rendering");
+    let mut pofs = None;
     let opts = if a.frame.whole {
         None
     } else {
-        let cull: CullMode = match &a.frame.cull {
-            Some(c) => c
+        let cull: CullMode = match (&a.frame.cull, &a.frame.pof) {
+            (Some(c), _) => c
                 .parse()
                 .map_err(|e: String| anyhow::anyhow!("--cull: {e}"))?,
-            None => CullMode::None,
+            (None, Some(_)) => CullMode::Pof,
+            (None, None) => CullMode::None,
         };
+        if let Some(p) = &a.frame.pof {
+            pofs = Some(job.load_pofs(p)?);
+        }
+        if cull == CullMode::PofSet && !pofs.as_ref().is_some_and(pofvr::pof::PofTable::has_sets) {
+            bail!("--cull pof-set needs a POF file built with --sets");
+        }
         Some(FrameOptions {
             cull,
             cull_threshold: a.frame.cull_threshold,
@@ -144,6 +152,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
                 .map_err(|e| anyhow::anyhow!("--curve: {e}"))?,
         })
     };
+    let bounds = pofs.as_ref().map(|t| t as &dyn OpacityBound);
     let mut all = Vec::with_capacity(a.frames);
     for i in 0..a.frames {
         #[allow(clippy::cast_precision_loss)]
@@ -151,7 +160,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         let frame = match &opts {
             None if backend.is_root() => Some(render_reference(&job, &cam_i)),
             None => None,
-            Some(opts) => backend.frame(&job, None, &cam_i, opts)?,
+            Some(opts) => backend.frame(&job, bounds, &cam_i, opts)?,
         };
         let Some((image, stats)) = frame else {
             continue;
