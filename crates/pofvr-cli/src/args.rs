@@ -153,6 +153,22 @@ pub(crate) struct RenderArgs {
     pub(crate) reference: Option<PathBuf>,
     #[command(flatten)]
     pub(crate) frame: FrameArgs,
+    /// Frames to render: an orbit about the volume's Y axis (see --orbit), so that per-frame
+    /// time can be measured after start-up. With more than one frame, outputs get a
+    /// `-NNNN` frame suffix and --stats holds one entry per frame.
+    /// > default: 1
+    #[arg(long, default_value_t = 1)]
+    pub(crate) frames: usize,
+    /// Azimuth step between frames in degrees (rotation about the Y axis through the focal
+    /// point).
+    /// > default: 0
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        allow_hyphen_values = true,
+        value_name = "DEG"
+    )]
+    pub(crate) orbit: f64,
 }
 
 /// Culling and the parallel frame.

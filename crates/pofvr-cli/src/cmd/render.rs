@@ -1,24 +1,132 @@
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
-use pofvr::cull::CullMode;
-use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
-use pofvr::render::Image;
+use anyhow::{bail, Context, Result};
+use pofvr::cull::{CullMode, OpacityBound};
+use pofvr::frame::{render_frame, render_reference, FrameOptions, FrameStats, RenderJob};
+use pofvr::render::{Camera, Image};
 
 use crate::args::RenderArgs;
 use crate::progress::Ui;
 use crate::resolve;
 
+/// Where the frames of `pofvr render` are made: in-process ranks (threads), or this
+/// process's part of an MPI job (`mpi_frame.rs`).
+pub(crate) trait Backend {
+    /// True on the rank that writes the outputs and prints the summary.
+    fn is_root(&self) -> bool;
+
+    /// One frame; `Some` on the root only.
+    fn frame(
+        &self,
+        job: &RenderJob,
+        bounds: Option<&dyn OpacityBound>,
+        camera: &Camera,
+        opts: &FrameOptions,
+    ) -> Result<Option<(Image, FrameStats)>>;
+
+    /// Called on every rank after the last frame; the root returns extra `--stats` fields.
+    fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>>;
+}
+
+/// `--ranks N` threads of this process.
+struct InProcess;
+
+impl Backend for InProcess {
+    fn is_root(&self) -> bool {
+        true
+    }
+
+    fn frame(
+        &self,
+        job: &RenderJob,
+        bounds: Option<&dyn OpacityBound>,
+        camera: &Camera,
+        opts: &FrameOptions,
+    ) -> Result<Option<(Image, FrameStats)>> {
+        Ok(Some(render_frame(job, bounds, camera, opts)?))
+    }
+
+    fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>> {
+        let mut m = serde_json::Map::new();
+        m.insert(
+            "memory".into(),
+            serde_json::to_value([MemoryStatus::now(0)])?,
+        );
+        Ok(Some(m))
+    }
+}
+
+/// One process's memory, from `/proc/self/status` (Linux; zeros elsewhere), and its host.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub(crate) struct MemoryStatus {
+    /// The rank (0 for in-process ranks, which share the process).
+    pub(crate) rank: usize,
+    /// Host name.
+    pub(crate) host: String,
+    /// Resident set now (`VmRSS`).
+    pub(crate) vm_rss_bytes: u64,
+    /// Peak resident set (`VmHWM`).
+    pub(crate) vm_hwm_bytes: u64,
+    /// Resident anonymous memory (`RssAnon`): heap, images, fragments.
+    pub(crate) rss_anon_bytes: u64,
+    /// Resident file-backed pages (`RssFile`): the memory-mapped volume pages touched.
+    pub(crate) rss_file_bytes: u64,
+}
+
+impl MemoryStatus {
+    pub(crate) fn now(rank: usize) -> Self {
+        let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+        let kib = |key: &str| {
+            status
+                .lines()
+                .find_map(|l| l.strip_prefix(key)?.strip_prefix(':'))
+                .and_then(|v| v.split_whitespace().next()?.parse::<u64>().ok())
+                .map_or(0, |k| k * 1024)
+        };
+        MemoryStatus {
+            rank,
+            host: std::fs::read_to_string("/proc/sys/kernel/hostname")
+                .map(|h| h.trim().to_owned())
+                .unwrap_or_default(),
+            vm_rss_bytes: kib("VmRSS"),
+            vm_hwm_bytes: kib("VmHWM"),
+            rss_anon_bytes: kib("RssAnon"),
+            rss_file_bytes: kib("RssFile"),
+        }
+    }
+}
+
 pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
+    #[cfg(feature = "mpi")]
+    if pofvr_mpi::launched_by_mpi() {
+        return super::mpi_frame::run(a, ui);
+    }
+    run_with(a, ui, &InProcess)
+}
+
+/// `pofvr render` over any backend: every rank runs this; only the root writes.
+#[allow(clippy::too_many_lines)]
+pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result<()> {
     let t0 = Instant::now();
+    if a.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    if !a.orbit.is_finite() {
+        bail!("--orbit {} is not a finite number of degrees", a.orbit);
+    }
+    if a.frames > 1 && a.reference.is_some() {
+        bail!("--reference compares one frame; leave out --frames");
+    }
     let sp = ui.spinner("opening and bricking the volume");
     let vol = resolve::volume(&a.volume)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
     let cam = resolve::camera(&a.view, &vol)?;
     let job = RenderJob::new(vol, tf, a.volume.brick, resolve::settings(&a.view))?;
     sp.set_message("rendering");
-    let (image, stats) = if a.frame.whole {
-        render_reference(&job, &cam)
+    let mut pofs = None;
+    let opts = if a.frame.whole {
+        None
     } else {
         let cull: CullMode = match (&a.frame.cull, &a.frame.pof) {
             (Some(c), _) => c
@@ -27,15 +135,13 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
             (None, Some(_)) => CullMode::Pof,
             (None, None) => CullMode::None,
         };
-        let pofs = match &a.frame.pof {
-            Some(p) => Some(job.load_pofs(p)?),
-            None => None,
-        };
-        if cull == CullMode::PofSet && !pofs.as_ref().is_some_and(pofvr::pof::PofTable::has_sets) {
-            anyhow::bail!("--cull pof-set needs a POF file built with --sets");
+        if let Some(p) = &a.frame.pof {
+            pofs = Some(job.load_pofs(p)?);
         }
-        let bounds = pofs.as_ref().map(|t| t as &dyn pofvr::cull::OpacityBound);
-        let opts = FrameOptions {
+        if cull == CullMode::PofSet && !pofs.as_ref().is_some_and(pofvr::pof::PofTable::has_sets) {
+            bail!("--cull pof-set needs a POF file built with --sets");
+        }
+        Some(FrameOptions {
             cull,
             cull_threshold: a.frame.cull_threshold,
             ranks: a.frame.ranks,
@@ -44,22 +150,54 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
                 .curve
                 .parse()
                 .map_err(|e| anyhow::anyhow!("--curve: {e}"))?,
-        };
-        render_frame(&job, bounds, &cam, &opts)?
+        })
     };
+    let bounds = pofs.as_ref().map(|t| t as &dyn OpacityBound);
+    let mut all = Vec::with_capacity(a.frames);
+    for i in 0..a.frames {
+        #[allow(clippy::cast_precision_loss)]
+        let cam_i = orbited(&cam, a.orbit * i as f64);
+        let frame = match &opts {
+            None if backend.is_root() => Some(render_reference(&job, &cam_i)),
+            None => None,
+            Some(opts) => backend.frame(&job, bounds, &cam_i, opts)?,
+        };
+        let Some((image, stats)) = frame else {
+            continue;
+        };
+        let name = |p: &Path| frame_path(p, i, a.frames);
+        image.write_png(&name(&a.out))?;
+        if let Some(p) = &a.out_raw {
+            image.write_raw(&name(p))?;
+        }
+        if let Some(r) = &a.reference {
+            let reference = Image::read_raw(r, cam.width, cam.height)
+                .with_context(|| format!("--reference {}", r.display()))?;
+            println!(
+                "reference {}: rmse {:.3e}, max abs diff {:.3e}",
+                r.display(),
+                image.rmse(&reference).unwrap_or(f64::NAN),
+                image.max_abs_diff(&reference).unwrap_or(f32::NAN)
+            );
+        }
+        all.push(stats);
+    }
+    let extra = backend.finish()?;
     sp.finish_and_clear();
-    image.write_png(&a.out)?;
-    if let Some(p) = &a.out_raw {
-        image.write_raw(p)?;
+    if !backend.is_root() {
+        return Ok(());
     }
     resolve::write_camera(&a.view, &cam)?;
     if let Some(p) = &a.stats {
-        let json = serde_json::to_string_pretty(&stats)?;
-        pofvr::io::write_bytes_atomic(p, json.as_bytes())?;
+        let json = stats_json(&all, extra)?;
+        pofvr::io::write_bytes_atomic(p, serde_json::to_string_pretty(&json)?.as_bytes())?;
     }
+    let Some(stats) = all.first() else {
+        bail!("the root rendered no frame");
+    };
     eprintln!(
         "{}: {}×{} in {:.1} ms, {} rays, {:.1} M samples ({:.0} M samples/s), total {:.2} s",
-        a.out.display(),
+        frame_path(&a.out, 0, a.frames).display(),
         cam.width,
         cam.height,
         stats.frame_ms,
@@ -81,15 +219,92 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
             b.visible
         );
     }
-    if let Some(r) = &a.reference {
-        let reference = Image::read_raw(r, cam.width, cam.height)
-            .with_context(|| format!("--reference {}", r.display()))?;
-        println!(
-            "reference {}: rmse {:.3e}, max abs diff {:.3e}",
-            r.display(),
-            image.rmse(&reference).unwrap_or(f64::NAN),
-            image.max_abs_diff(&reference).unwrap_or(f32::NAN)
+    if all.len() > 1 {
+        let ms: Vec<f64> = all.iter().map(|s| s.frame_ms).collect();
+        eprintln!(
+            "{} frames, {:.1}° apart: first {:.1} ms, median of the rest {:.1} ms",
+            all.len(),
+            a.orbit,
+            ms[0],
+            median(&ms[1..])
         );
     }
     Ok(())
+}
+
+/// The camera turned by `degrees` about the world Y axis through its focal point (the
+/// azimuth of `--view` grows by `degrees`); exact for 0.
+fn orbited(cam: &Camera, degrees: f64) -> Camera {
+    let (s, c) = degrees.to_radians().sin_cos();
+    let turn = |v: [f64; 3]| [c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]];
+    let f = cam.focal_point;
+    let rel = turn([
+        cam.position[0] - f[0],
+        cam.position[1] - f[1],
+        cam.position[2] - f[2],
+    ]);
+    let mut out = cam.clone();
+    out.position = [f[0] + rel[0], f[1] + rel[1], f[2] + rel[2]];
+    out.view_up = turn(cam.view_up);
+    out
+}
+
+/// `out.png` for one frame, `out-0003.png` for frame 3 of a sequence.
+fn frame_path(p: &Path, i: usize, frames: usize) -> PathBuf {
+    if frames <= 1 {
+        return p.to_path_buf();
+    }
+    let stem = p
+        .file_stem()
+        .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+    let name = match p.extension() {
+        Some(e) => format!("{stem}-{i:04}.{}", e.to_string_lossy()),
+        None => format!("{stem}-{i:04}"),
+    };
+    p.with_file_name(name)
+}
+
+fn median(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// One frame: its statistics (plus the backend's fields). A sequence: `frames` (one entry
+/// per frame), `frame_ms` (per-frame times), `first_frame_ms`, `median_frame_ms` (of the
+/// frames after the first), `bytes_sent` (per frame, all ranks), plus the backend's fields.
+fn stats_json(
+    all: &[FrameStats],
+    extra: Option<serde_json::Map<String, serde_json::Value>>,
+) -> Result<serde_json::Value> {
+    use serde_json::Value;
+    let mut map = if let [one] = all {
+        match serde_json::to_value(one)? {
+            Value::Object(m) => m,
+            _ => bail!("frame statistics are not a JSON object"),
+        }
+    } else {
+        let ms: Vec<f64> = all.iter().map(|s| s.frame_ms).collect();
+        let bytes: Vec<u64> = all
+            .iter()
+            .map(|s| s.ranks.iter().map(|r| r.bytes_sent).sum())
+            .collect();
+        let mut m = serde_json::Map::new();
+        m.insert("frames".into(), serde_json::to_value(all)?);
+        m.insert("first_frame_ms".into(), ms.first().copied().into());
+        m.insert(
+            "median_frame_ms".into(),
+            median(&ms[1.min(ms.len())..]).into(),
+        );
+        m.insert("frame_ms".into(), serde_json::to_value(&ms)?);
+        m.insert("bytes_sent".into(), serde_json::to_value(&bytes)?);
+        m
+    };
+    if let Some(extra) = extra {
+        map.extend(extra);
+    }
+    Ok(Value::Object(map))
 }

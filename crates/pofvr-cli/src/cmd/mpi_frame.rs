@@ -1,0 +1,112 @@
+//! `pofvr render` under `mpirun` (cargo feature `mpi`): one pofvr rank per MPI process,
+//! through [`pofvr_mpi::MpiCommunicator`] and `pofvr::frame::render_frame_on`. Every rank
+//! opens the volume (memory-mapped: it touches the pages of the bricks it ray-casts),
+//! renders its share of each frame, and rank 0 writes the outputs and `--stats`, which gains
+//! `mpi_ranks` and `memory` (every rank's resident memory and host).
+//!
+//! Any error on any rank (a missing file, a bad flag, a failed exchange) and any panic ends
+//! the whole job through `MPI_Abort`, after printing `pofvr: rank R aborted: CAUSE`.
+
+use std::cell::RefCell;
+use std::time::Duration;
+
+use anyhow::{anyhow, bail, Result};
+use pofvr::comm::{Communicator, Rank};
+use pofvr::cull::OpacityBound;
+use pofvr::frame::{render_frame_on, FrameOptions, FrameStats, RenderJob};
+use pofvr::render::{Camera, Image};
+use pofvr_mpi::MpiCommunicator;
+
+use super::render::{self, Backend, MemoryStatus};
+use crate::args::RenderArgs;
+use crate::progress::Ui;
+
+/// Bound on the end-of-run memory gather (it only turns a lost rank into an error).
+const GATHER_TIMEOUT: Duration = Duration::from_secs(120);
+
+struct Mpi<'a> {
+    comm: &'a MpiCommunicator,
+    /// Root only: every rank's `bytes_sent` after the previous frame, to report per frame.
+    sent_before: RefCell<Vec<u64>>,
+}
+
+impl Backend for Mpi<'_> {
+    fn is_root(&self) -> bool {
+        self.comm.rank() == Rank(0)
+    }
+
+    fn frame(
+        &self,
+        job: &RenderJob,
+        bounds: Option<&dyn OpacityBound>,
+        camera: &Camera,
+        opts: &FrameOptions,
+    ) -> Result<Option<(Image, FrameStats)>> {
+        let opts = FrameOptions {
+            ranks: 1,
+            ..opts.clone()
+        };
+        let Some((image, mut stats)) = render_frame_on(self.comm, job, bounds, camera, &opts)?
+        else {
+            return Ok(None);
+        };
+        // The communicator lives for the whole run, so its counts are cumulative; report
+        // each frame's own bytes like the in-process path (a fresh communicator per frame).
+        let mut before = self.sent_before.borrow_mut();
+        before.resize(stats.ranks.len(), 0);
+        for (r, prev) in stats.ranks.iter_mut().zip(before.iter_mut()) {
+            let total = r.bytes_sent;
+            r.bytes_sent = total.saturating_sub(*prev);
+            *prev = total;
+        }
+        Ok(Some((image, stats)))
+    }
+
+    fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>> {
+        let me = MemoryStatus::now(self.comm.rank().index());
+        let gathered = self
+            .comm
+            .gather(Rank(0), serde_json::to_vec(&me)?, GATHER_TIMEOUT)?;
+        let Some(all) = gathered else {
+            return Ok(None);
+        };
+        let memory: Vec<MemoryStatus> = all
+            .iter()
+            .map(|b| serde_json::from_slice(b))
+            .collect::<Result<_, _>>()
+            .map_err(|e| anyhow!("rank memory report: {e}"))?;
+        let mut m = serde_json::Map::new();
+        m.insert("mpi_ranks".into(), self.comm.size().into());
+        m.insert("memory".into(), serde_json::to_value(memory)?);
+        Ok(Some(m))
+    }
+}
+
+/// Runs `pofvr render` as this process's rank of the MPI job. Does not return on failure:
+/// the job is aborted with the cause.
+pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
+    let comm = MpiCommunicator::init().map_err(|e| anyhow!("MPI: {e}"))?;
+    comm.install_panic_abort();
+    let result = (|| {
+        if a.frame.ranks != 1 {
+            bail!(
+                "--ranks {} runs ranks as threads of one process; under mpirun the rank count \
+                 is mpirun's -np ({} here)",
+                a.frame.ranks,
+                comm.size()
+            );
+        }
+        if a.frame.whole {
+            bail!("--whole is the single-process reference renderer; run it without mpirun");
+        }
+        let backend = Mpi {
+            comm: &comm,
+            sent_before: RefCell::new(Vec::new()),
+        };
+        render::run_with(a, ui, &backend)
+    })();
+    if let Err(e) = result {
+        comm.abort_job(&format!("{e:#}"));
+    }
+    Ok(())
+}

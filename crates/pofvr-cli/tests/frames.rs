@@ -1,0 +1,118 @@
+//! `pofvr render --frames N --orbit DEG` in one process: an orbit about Y, one stats entry
+//! per frame, and each process's memory in `--stats`.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn pofvr(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pofvr"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run pofvr")
+}
+
+fn floats(path: &Path) -> Vec<f32> {
+    std::fs::read(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+fn max_diff(a: &Path, b: &Path) -> f32 {
+    let (a, b) = (floats(a), floats(b));
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn an_orbit_is_the_views_it_passes_and_stats_have_one_entry_per_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = pofvr(
+        &[
+            "render",
+            "phantom:head:48",
+            "--size",
+            "48x40",
+            "--view",
+            "30,20",
+            "--frames",
+            "3",
+            "--orbit",
+            "40",
+            "--ranks",
+            "2",
+            "--out",
+            "o.png",
+            "--out-raw",
+            "o.raw",
+            "--stats",
+            "s.json",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for v in ["30,20", "70,20", "110,20"] {
+        let raw = format!("v{}.raw", v.replace(',', "_"));
+        let o = pofvr(
+            &[
+                "render",
+                "phantom:head:48",
+                "--size",
+                "48x40",
+                "--view",
+                v,
+                "--out",
+                "v.png",
+                "--out-raw",
+                &raw,
+            ],
+            d,
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert!(max_diff(&d.join("o-0000.raw"), &d.join("v30_20.raw")) <= 1e-6);
+    assert!(max_diff(&d.join("o-0001.raw"), &d.join("v70_20.raw")) <= 1e-6);
+    assert!(max_diff(&d.join("o-0002.raw"), &d.join("v110_20.raw")) <= 1e-6);
+    assert!(max_diff(&d.join("o-0000.raw"), &d.join("o-0002.raw")) > 1e-3);
+    assert!(d.join("o-0002.png").exists() && !d.join("o.png").exists());
+    let s: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("s.json")).unwrap()).unwrap();
+    assert_eq!(s["frames"].as_array().unwrap().len(), 3, "{s}");
+    assert_eq!(s["frame_ms"].as_array().unwrap().len(), 3, "{s}");
+    assert_eq!(s["bytes_sent"].as_array().unwrap().len(), 3, "{s}");
+    assert!(s["bytes_sent"][0].as_u64().unwrap() > 0, "{s}");
+    assert_eq!(s["frames"][2]["ranks"].as_array().unwrap().len(), 2, "{s}");
+    assert!(s["memory"][0]["vm_hwm_bytes"].as_u64().unwrap() > 0, "{s}");
+}
+
+#[test]
+fn zero_frames_and_a_reference_with_a_sequence_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for args in [
+        vec!["render", "phantom:head:32", "--frames", "0"],
+        vec![
+            "render",
+            "phantom:head:32",
+            "--frames",
+            "2",
+            "--reference",
+            "x.raw",
+        ],
+    ] {
+        let o = pofvr(&args, dir.path());
+        assert!(!o.status.success(), "{args:?} must fail");
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains("--frames")
+                || String::from_utf8_lossy(&o.stderr).contains("--reference"),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none());
+}

@@ -1,0 +1,307 @@
+//! `pofvr render` under `mpirun` (built with `--features mpi`): the frame of 1 to 4 MPI ranks
+//! is the in-process frame, for both curves; sequences; a failing rank ends the job fast with
+//! a message naming it. Skipped, with the reason printed, where `mpirun` is absent.
+//!
+//! These live in the CLI crate rather than in `pofvr-mpi` because they run the `pofvr` binary
+//! itself, which cargo builds (with the feature) only for this crate's tests.
+#![cfg(feature = "mpi")]
+
+use std::path::Path;
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+const PHANTOM: &str = "phantom:head:64";
+
+fn have_mpirun() -> bool {
+    let found = Command::new("mpirun").arg("--version").output().is_ok();
+    if !found {
+        eprintln!("SKIPPED: mpirun not found on PATH (install openmpi-bin to run MPI tests)");
+    }
+    found
+}
+
+/// `pofvr ARGS` as `np` MPI ranks.
+fn mpirun(np: usize, args: &[&str], dir: &Path) -> (Output, Duration) {
+    let t = Instant::now();
+    let out = Command::new("mpirun")
+        .args([
+            "--allow-run-as-root",
+            "--oversubscribe",
+            "--bind-to",
+            "none",
+        ])
+        .args(["-np", &np.to_string()])
+        .arg(env!("CARGO_BIN_EXE_pofvr"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run mpirun");
+    (out, t.elapsed())
+}
+
+/// `pofvr ARGS` in this process's ranks (no MPI launcher in the environment).
+fn pofvr(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pofvr"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run pofvr")
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "status {:?}\nstdout:\n{}\nstderr:\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn floats(path: &Path) -> Vec<f32> {
+    std::fs::read(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+fn max_diff(a: &Path, b: &Path) -> f32 {
+    let (a, b) = (floats(a), floats(b));
+    assert_eq!(a.len(), b.len(), "image sizes differ");
+    assert!(!a.is_empty(), "empty image");
+    a.iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+fn render_args<'a>(curve: &'a str, cull: &'a str, out: &'a str) -> Vec<&'a str> {
+    vec![
+        "render",
+        PHANTOM,
+        "--size",
+        "96x80",
+        "--view",
+        "35,25",
+        "--curve",
+        curve,
+        "--cull",
+        cull,
+        "--out",
+        "x.png",
+        "--out-raw",
+        out,
+    ]
+}
+
+#[test]
+fn one_to_four_mpi_ranks_give_the_in_process_frame_for_both_curves() {
+    if !have_mpirun() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (curve, cull) in [("hilbert", "none"), ("z", "none"), ("hilbert", "exact")] {
+        let one = format!("local-{curve}-{cull}-1.raw");
+        let o = pofvr(
+            &[render_args(curve, cull, &one), vec!["--ranks", "1"]].concat(),
+            d,
+        );
+        assert!(o.status.success(), "{}", text(&o));
+        for np in 1..=4 {
+            let local = format!("local-{curve}-{cull}-{np}.raw");
+            let npstr = np.to_string();
+            let o = pofvr(
+                &[render_args(curve, cull, &local), vec!["--ranks", &npstr]].concat(),
+                d,
+            );
+            assert!(o.status.success(), "{}", text(&o));
+            let mpi = format!("mpi-{curve}-{cull}-{np}.raw");
+            let stats = format!("mpi-{curve}-{cull}-{np}.json");
+            let (o, _) = mpirun(
+                np,
+                &[render_args(curve, cull, &mpi), vec!["--stats", &stats]].concat(),
+                d,
+            );
+            assert!(o.status.success(), "{curve} {cull} -np {np}: {}", text(&o));
+            let vs_local = max_diff(&d.join(&mpi), &d.join(&local));
+            let vs_one = max_diff(&d.join(&mpi), &d.join(&one));
+            assert!(
+                vs_local <= 1e-6 && vs_one <= 1e-6,
+                "{curve} {cull} -np {np}: max diff {vs_local:e} vs --ranks {np}, \
+                 {vs_one:e} vs --ranks 1"
+            );
+            let s: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+            assert_eq!(s["mpi_ranks"], np, "{s}");
+            assert_eq!(s["ranks"].as_array().unwrap().len(), np, "{s}");
+            let memory = s["memory"].as_array().unwrap();
+            assert_eq!(memory.len(), np, "{s}");
+            for (r, m) in memory.iter().enumerate() {
+                assert_eq!(m["rank"], r, "{s}");
+                assert!(m["vm_hwm_bytes"].as_u64().unwrap() > 0, "{s}");
+                assert!(m["vm_rss_bytes"].as_u64().unwrap() <= m["vm_hwm_bytes"].as_u64().unwrap());
+            }
+            let rendered: u64 = s["ranks"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|r| r["bricks_rendered"].as_u64().unwrap())
+                .sum();
+            assert_eq!(rendered, s["bricks"]["visible"].as_u64().unwrap(), "{s}");
+            if np > 1 {
+                assert!(
+                    s["ranks"][1]["bytes_sent"].as_u64().unwrap() > 0,
+                    "rank 1 sent nothing: {s}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn an_orbit_sequence_under_mpi_has_one_stats_entry_per_frame() {
+    if !have_mpirun() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (o, _) = mpirun(
+        3,
+        &[
+            "render",
+            PHANTOM,
+            "--size",
+            "64x64",
+            "--view",
+            "30,20",
+            "--frames",
+            "3",
+            "--orbit",
+            "40",
+            "--out",
+            "seq.png",
+            "--out-raw",
+            "seq.raw",
+            "--stats",
+            "seq.json",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let o = pofvr(
+        &[
+            "render",
+            PHANTOM,
+            "--size",
+            "64x64",
+            "--view",
+            "110,20",
+            "--out",
+            "one.png",
+            "--out-raw",
+            "one.raw",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let diff = max_diff(&d.join("seq-0002.raw"), &d.join("one.raw"));
+    assert!(
+        diff <= 1e-6,
+        "frame 2 of a 40° orbit from 30° is not --view 110,20: {diff:e}"
+    );
+    assert!(max_diff(&d.join("seq-0000.raw"), &d.join("seq-0001.raw")) > 1e-3);
+    let s: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("seq.json")).unwrap()).unwrap();
+    assert_eq!(s["frames"].as_array().unwrap().len(), 3, "{s}");
+    assert_eq!(s["frame_ms"].as_array().unwrap().len(), 3, "{s}");
+    assert_eq!(s["bytes_sent"].as_array().unwrap().len(), 3, "{s}");
+    // Per-frame bytes, not a running total: no frame sends several times another's bytes.
+    let b: Vec<u64> = s["bytes_sent"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert!(
+        b.iter().all(|&x| x > 0 && x < 2 * b[0]),
+        "bytes per frame {b:?}"
+    );
+    assert!(s["median_frame_ms"].as_f64().unwrap() > 0.0, "{s}");
+}
+
+fn assert_aborts_fast(o: &Output, took: Duration, cause: &str) {
+    assert!(!o.status.success(), "the job must fail: {}", text(o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let named = err
+        .lines()
+        .any(|l| l.starts_with("pofvr: rank ") && l.contains(" aborted: ") && l.contains(cause));
+    assert!(named, "no line naming a rank and {cause:?}: {}", text(o));
+    assert!(took < Duration::from_secs(30), "took {took:?}");
+}
+
+#[test]
+fn a_missing_volume_file_aborts_the_job_within_seconds() {
+    if !have_mpirun() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (o, took) = mpirun(
+        3,
+        &[
+            "render",
+            "no-such-volume.raw",
+            "--dims",
+            "8,8,8",
+            "--dtype",
+            "u8",
+            "--tf",
+            "none.json",
+        ],
+        dir.path(),
+    );
+    assert_aborts_fast(&o, took, "no-such-volume.raw");
+    assert!(!dir.path().join("out.png").exists());
+}
+
+#[test]
+fn rank_zero_failing_while_the_others_wait_aborts_the_job() {
+    if !have_mpirun() {
+        return;
+    }
+    // Rank 0 fails writing the image after the frame, while ranks 1..3 already wait for the
+    // end-of-run gather: the job must end at once, naming rank 0.
+    let dir = tempfile::tempdir().unwrap();
+    let (o, took) = mpirun(
+        4,
+        &[
+            "render",
+            PHANTOM,
+            "--size",
+            "64x64",
+            "--out",
+            "no-such-dir/x.png",
+        ],
+        dir.path(),
+    );
+    assert_aborts_fast(&o, took, "no-such-dir");
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("pofvr: rank 0 aborted"),
+        "{}",
+        text(&o)
+    );
+}
+
+#[test]
+fn ranks_flag_under_mpirun_is_refused() {
+    if !have_mpirun() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (o, took) = mpirun(
+        2,
+        &["render", PHANTOM, "--size", "32x32", "--ranks", "3"],
+        dir.path(),
+    );
+    assert_aborts_fast(&o, took, "--ranks 3");
+}
