@@ -1,5 +1,6 @@
 pub(crate) mod bench;
 pub(crate) mod demo;
+pub(crate) mod experiment;
 pub(crate) mod info;
 pub(crate) mod render;
 pub(crate) mod serve;
