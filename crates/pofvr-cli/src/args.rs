@@ -35,6 +35,9 @@ pub(crate) enum Command {
     /// Measure performance and write a report.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Plenoptic Opacity Functions: build, inspect and check .pof files.
+    #[command(subcommand)]
+    Pof(crate::cmd::pof::PofCommand),
 }
 
 /// Where the volume comes from.
@@ -201,6 +204,9 @@ pub(crate) enum BenchCommand {
     /// Samples per second per core of the ray caster, with and without early termination,
     /// axis-aligned and oblique, on the phantom and on given volumes.
     Render(BenchRenderArgs),
+    /// POF precompute: brick-views per second per core and bytes per brick per basis for
+    /// each encoding, on the phantom and on given volumes.
+    Pof(crate::cmd::pof::BenchPofArgs),
 }
 
 #[derive(Args, Debug)]

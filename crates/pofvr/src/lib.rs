@@ -8,11 +8,13 @@
 //!    NRRD, MetaImage or NIfTI files, or generated ([`volume::phantom::Phantom`]).
 //! 2. [`brick::BrickGrid`]: the volume cut into bricks (16³ by default) with their value
 //!    ranges; empty bricks for a transfer function are known before rendering.
-//! 3. [`render::TransferFunction`]: a family of basis opacity functions with weights,
+//! 3. [`pof::PofTable`]: per brick and basis, the least opacity from every view (paper §3),
+//!    precomputed once and looked up by the culler.
+//! 4. [`render::TransferFunction`]: a family of basis opacity functions with weights,
 //!    tabulated as [`render::SampledTf`].
-//! 4. [`render::Camera`] and [`render::RayCaster`]: front-to-back emission–absorption
+//! 5. [`render::Camera`] and [`render::RayCaster`]: front-to-back emission–absorption
 //!    ray casting on one global sample lattice, so bricks render seamlessly.
-//! 5. [`frame`]: the one place where stages are chained into a frame.
+//! 6. [`frame`]: the one place where stages are chained into a frame.
 //!
 //! For parallel frames (paper §4):
 //!
@@ -32,5 +34,6 @@ pub mod cull;
 pub mod distribute;
 pub mod frame;
 pub mod io;
+pub mod pof;
 pub mod render;
 pub mod volume;

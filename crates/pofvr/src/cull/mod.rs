@@ -444,3 +444,25 @@ impl<'a> PixelSpans<'a> {
         t1 - t0.max(0.0) >= f64::from(core) + SPAN_SLACK
     }
 }
+
+/// Culling reads POFs through [`OpacityBound`]; the POF module knows nothing of culling.
+impl OpacityBound for crate::pof::PofTable {
+    fn core_length(&self) -> f32 {
+        crate::pof::PofTable::core_length(self)
+    }
+    fn opacity(&self, brick: BrickId, dir: DVec3, weights: &[f32], aggressive: bool) -> f32 {
+        crate::pof::PofTable::opacity(self, brick, dir, weights, pof_mode(self, aggressive))
+    }
+    fn opacity_cone(&self, brick: BrickId, axis: DVec3, half_angle: f64, weights: &[f32], aggressive: bool) -> f32 {
+        crate::pof::PofTable::opacity_cone(self, brick, axis, half_angle, weights, pof_mode(self, aggressive))
+    }
+}
+
+fn pof_mode(table: &crate::pof::PofTable, aggressive: bool) -> crate::pof::PofMode {
+    // A table without sets answers the aggressive mode conservatively.
+    if aggressive && table.has_sets() {
+        crate::pof::PofMode::Sets
+    } else {
+        crate::pof::PofMode::Conservative
+    }
+}

@@ -1,0 +1,610 @@
+//! `pofvr pof build|info|check` and `pofvr bench pof`.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context, Result};
+use clap::{Args, Subcommand};
+use glam::DVec3;
+use pofvr::brick::{BrickGrid, BrickId};
+use pofvr::pof::reference::{core_min, ReferenceProbe};
+use pofvr::pof::{direction, Encoding, PofMode, PofSettings, PofTable};
+use pofvr::render::{families, SampledTf, TransferFunction};
+use pofvr::volume::{DataType, RawSpec, Volume};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::args::{TfArgs, VolumeArgs};
+use crate::progress::Ui;
+use crate::resolve;
+
+/// `pofvr pof …`
+#[derive(Subcommand, Debug)]
+pub(crate) enum PofCommand {
+    /// Precompute the POFs of every brick for a transfer-function family into a .pof file.
+    Build(PofBuildArgs),
+    /// Print what a .pof file holds.
+    Info(PofInfoArgs),
+    /// Render random views of random bricks by brute force and count views where the POF
+    /// lookup exceeds the true core-footprint minimum; exits non-zero if there is any.
+    Check(PofCheckArgs),
+}
+
+/// Knobs of the precompute shared by `pof build` and `bench pof`.
+#[derive(Args, Debug, Clone)]
+pub(crate) struct PofKnobs {
+    /// Sample views over (θ, φ), rows × columns.
+    /// > default: 36,36
+    #[arg(long, value_name = "N,M", default_value = "36,36")]
+    pub(crate) views: String,
+    /// Sample distance the POFs bound, in units of the smallest voxel spacing (must match
+    /// the renderer's --step).
+    /// > default: 1
+    #[arg(long, default_value_t = 1.0)]
+    pub(crate) step: f32,
+    /// Early ray termination threshold lookups are capped at (the renderer's --ert).
+    /// > default: 0.99
+    #[arg(long, default_value_t = 0.99)]
+    pub(crate) ert: f32,
+    /// Core length L in units of the smallest spacing: the POF bounds rays running at least
+    /// this far inside a brick.
+    /// > default: half the brick size
+    #[arg(long, value_name = "L")]
+    pub(crate) core_length: Option<f32>,
+    /// Entry-face patch size of the bound, in voxels.
+    /// > default: 0.5
+    #[arg(long, default_value_t = 0.5)]
+    pub(crate) pitch: f32,
+    /// Measured directions per view-cell edge.
+    /// > default: 2
+    #[arg(long, default_value_t = 2)]
+    pub(crate) subdiv: usize,
+    /// Share of the measured optical depth kept between measured directions.
+    /// > default: 0.9
+    #[arg(long, default_value_t = 0.9)]
+    pub(crate) margin: f32,
+}
+
+impl PofKnobs {
+    fn settings(&self, encoding: Encoding, sets: bool) -> Result<PofSettings> {
+        let v = resolve::parse_list::<usize>("--views", &self.views, Some(2))?;
+        Ok(PofSettings {
+            views: [v[0], v[1]],
+            encoding,
+            sets,
+            step: self.step,
+            ert: self.ert,
+            core_length: self.core_length,
+            pitch: self.pitch,
+            subdiv: self.subdiv,
+            margin: self.margin,
+        })
+    }
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct PofBuildArgs {
+    #[command(flatten)]
+    pub(crate) volume: VolumeArgs,
+    #[command(flatten)]
+    pub(crate) tf: TfArgs,
+    /// Output .pof file.
+    #[arg(long, short, value_name = "FILE.pof")]
+    pub(crate) out: PathBuf,
+    /// Storage: table (f32), u8, u16 (rounded down) or cubic (10 coefficients).
+    /// > default: table
+    #[arg(long, default_value = "table")]
+    pub(crate) encoding: String,
+    /// Also store POF sets (aggressive multi-basis mode).
+    #[arg(long)]
+    pub(crate) sets: bool,
+    #[command(flatten)]
+    pub(crate) knobs: PofKnobs,
+    /// Start afresh instead of resuming from FILE.pof.partial.
+    #[arg(long)]
+    pub(crate) no_resume: bool,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct PofInfoArgs {
+    /// The .pof file.
+    pub(crate) file: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub(crate) json: bool,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct PofCheckArgs {
+    #[command(flatten)]
+    pub(crate) volume: VolumeArgs,
+    #[command(flatten)]
+    pub(crate) tf: TfArgs,
+    /// The .pof file to check.
+    #[arg(long, value_name = "FILE.pof")]
+    pub(crate) pof: PathBuf,
+    /// Number of random brute-force views.
+    /// > default: 200
+    #[arg(long, default_value_t = 200)]
+    pub(crate) views: usize,
+    /// Random seed.
+    /// > default: 1
+    #[arg(long, default_value_t = 1)]
+    pub(crate) seed: u64,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct BenchPofArgs {
+    /// Extra volumes: files the volume readers open, or catalogue raw files named
+    /// `NAME_XxYxZ_TYPE.raw` (dims and type read from the name).
+    pub(crate) volumes: Vec<String>,
+    /// Transfer-function family for the extra volumes (an automatic ramp otherwise).
+    #[arg(long, value_name = "TF.json")]
+    pub(crate) tf: Option<PathBuf>,
+    /// Phantom size (Shepp–Logan head with its built-in family).
+    /// > default: 128
+    #[arg(long, default_value_t = 128)]
+    pub(crate) phantom: usize,
+    #[command(flatten)]
+    pub(crate) knobs: PofKnobs,
+    /// Report file (JSON); a table is printed too.
+    /// > default: bench-pof.json
+    #[arg(long, default_value = "bench-pof.json")]
+    pub(crate) out: PathBuf,
+}
+
+pub(crate) fn run(cmd: &PofCommand, ui: &Ui) -> Result<()> {
+    match cmd {
+        PofCommand::Build(a) => build(a, ui),
+        PofCommand::Info(a) => info(a),
+        PofCommand::Check(a) => check(a, ui),
+    }
+}
+
+struct Built {
+    table: PofTable,
+    seconds: f64,
+    computed_bricks: u64,
+}
+
+fn build_table(
+    vol: &Volume,
+    grid: &BrickGrid,
+    tf: &TransferFunction,
+    settings: &PofSettings,
+    partial: Option<&Path>,
+    ui: &Ui,
+    label: &str,
+) -> Result<Built> {
+    let sampled = SampledTf::new(tf, grid.value_range());
+    let bar = ui.bar(0, label);
+    let total = AtomicU64::new(0);
+    let start = Instant::now();
+    let table =
+        PofTable::build_resumable(vol, grid, tf, &sampled, settings, partial, &|done, n| {
+            total.store(n, Ordering::Relaxed);
+            bar.set_length(n);
+            bar.set_position(done);
+        })?;
+    bar.finish_and_clear();
+    Ok(Built {
+        table,
+        seconds: start.elapsed().as_secs_f64(),
+        computed_bricks: total.load(Ordering::Relaxed),
+    })
+}
+
+#[allow(clippy::cast_precision_loss)]
+fn rate(b: &Built, settings: &PofSettings) -> f64 {
+    let views = (settings.views[0] * settings.views[1]) as f64;
+    b.computed_bricks as f64 * views / b.seconds.max(1e-9) / rayon::current_num_threads() as f64
+}
+
+fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
+    let sp = ui.spinner("opening and bricking the volume");
+    let vol = resolve::volume(&a.volume)?;
+    let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
+    let grid = BrickGrid::from_volume(&vol, a.volume.brick)?;
+    sp.finish_and_clear();
+    let encoding: Encoding = a
+        .encoding
+        .parse()
+        .map_err(|e: String| anyhow!("--encoding: {e}"))?;
+    let settings = a.knobs.settings(encoding, a.sets)?;
+    let partial = PathBuf::from(format!("{}.partial", a.out.display()));
+    if a.no_resume {
+        let _ = std::fs::remove_file(&partial);
+    }
+    let built = build_table(&vol, &grid, &tf, &settings, Some(&partial), ui, "POFs")?;
+    built.table.save(&a.out)?;
+    // The table is safely on disk: the resume file has served its purpose.
+    let _ = std::fs::remove_file(&partial);
+    eprintln!(
+        "{}: {} of {} bricks stored ({} non-empty computed), {} views, {} encoding, {:.0} bytes per brick per basis, {} bytes; {:.2} s, {:.0} brick-views/s per core",
+        a.out.display(),
+        built.table.stored_bricks(),
+        grid.len(),
+        built.computed_bricks,
+        settings.views[0] * settings.views[1],
+        encoding,
+        built.table.bytes_per_brick_per_basis(),
+        built.table.file_len(),
+        built.seconds,
+        rate(&built, &settings)
+    );
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct InfoJson {
+    file: String,
+    dims: [u64; 3],
+    dtype: String,
+    brick_size: u32,
+    bricks: u32,
+    stored_bricks: usize,
+    bases: u32,
+    bases_fingerprint: String,
+    range_hash: String,
+    views: [u32; 2],
+    encoding: String,
+    sets: bool,
+    step: f32,
+    ert: f32,
+    core_length: f32,
+    margin: f32,
+    pitch: f32,
+    subdiv: u32,
+    bytes_per_brick_per_basis: f64,
+    file_bytes: usize,
+}
+
+fn info(a: &PofInfoArgs) -> Result<()> {
+    let t = PofTable::open(&a.file)?;
+    let m = t.meta();
+    let j = InfoJson {
+        file: a.file.display().to_string(),
+        dims: m.dims,
+        dtype: m.dtype.to_string(),
+        brick_size: m.brick_size,
+        bricks: m.brick_count,
+        stored_bricks: t.stored_bricks(),
+        bases: m.basis_count,
+        bases_fingerprint: format!("{:016x}", m.bases_fingerprint),
+        range_hash: format!("{:016x}", m.range_hash),
+        views: m.views,
+        encoding: m.encoding.to_string(),
+        sets: m.sets,
+        step: m.step,
+        ert: m.ert,
+        core_length: m.core_length,
+        margin: m.margin,
+        pitch: m.pitch,
+        subdiv: m.subdiv,
+        bytes_per_brick_per_basis: t.bytes_per_brick_per_basis(),
+        file_bytes: t.file_len(),
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+        return Ok(());
+    }
+    println!("file        {}  ({} bytes, CRCs ok)", j.file, j.file_bytes);
+    println!(
+        "volume      {}×{}×{} {}, bricks of {} ({} bricks, {} stored), value-range hash {}",
+        m.dims[0],
+        m.dims[1],
+        m.dims[2],
+        j.dtype,
+        j.brick_size,
+        j.bricks,
+        j.stored_bricks,
+        j.range_hash
+    );
+    println!(
+        "family      {} bases, fingerprint {}",
+        j.bases, j.bases_fingerprint
+    );
+    println!(
+        "views       {}×{} (θ × φ), {} measured directions per cell edge, margin {}",
+        m.views[0], m.views[1], m.subdiv, m.margin
+    );
+    println!(
+        "sampling    step {}, ert {}, core length L {}, patch pitch {}",
+        m.step, m.ert, m.core_length, m.pitch
+    );
+    println!(
+        "encoding    {}{}, {:.0} bytes per brick per basis",
+        j.encoding,
+        if m.sets { " with POF sets" } else { "" },
+        j.bytes_per_brick_per_basis
+    );
+    Ok(())
+}
+
+/// A small deterministic generator (SplitMix64), so `pof check --seed` is reproducible.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    #[allow(clippy::cast_precision_loss)]
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn dir(&mut self) -> DVec3 {
+        let z = self.unit() * 2.0 - 1.0;
+        let phi = self.unit() * std::f64::consts::TAU;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        DVec3::new(r * phi.cos(), r * phi.sin(), z)
+    }
+}
+
+#[derive(Serialize, Default, Clone, Copy)]
+struct CheckSummary {
+    views: usize,
+    with_core: usize,
+    violations: usize,
+    worst_excess: f32,
+    mean_lookup: f64,
+    mean_true_min: f64,
+}
+
+fn check_table(
+    vol: &Volume,
+    grid: &BrickGrid,
+    tf: &TransferFunction,
+    table: &PofTable,
+    n: usize,
+    seed: u64,
+    ui: &Ui,
+) -> Result<CheckSummary> {
+    let sampled = SampledTf::new(tf, grid.value_range());
+    let stored: Vec<BrickId> = grid
+        .ids()
+        .filter(|id| !sampled.is_empty(grid.range(*id), &tf.weights))
+        .collect();
+    if stored.is_empty() {
+        bail!("no non-empty brick to check for these weights");
+    }
+    let mut rng = Rng(seed);
+    let probes: Vec<(BrickId, ReferenceProbe)> = (0..n)
+        .map(|_| {
+            #[allow(clippy::cast_possible_truncation)]
+            let id = stored[(rng.next() % stored.len() as u64) as usize];
+            (
+                id,
+                ReferenceProbe {
+                    dir: rng.dir(),
+                    phase: rng.unit(),
+                    jitter: [rng.unit(), rng.unit()],
+                    pixel: 0.5,
+                },
+            )
+        })
+        .collect();
+    let bar = ui.bar(n as u64, "brute-force views");
+    let results: Vec<(f32, Option<f32>)> = probes
+        .par_iter()
+        .map(|(id, p)| {
+            let r = core_min(
+                vol,
+                grid,
+                &sampled,
+                *id,
+                &tf.weights,
+                table.step(),
+                table.ert(),
+                table.core_length(),
+                p,
+            );
+            let a = table.opacity(*id, p.dir, &tf.weights, PofMode::Conservative);
+            bar.inc(1);
+            (a, r.core_min)
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut s = CheckSummary {
+        views: n,
+        ..CheckSummary::default()
+    };
+    for (a, m) in results {
+        let Some(m) = m else { continue };
+        s.with_core += 1;
+        s.mean_lookup += f64::from(a);
+        s.mean_true_min += f64::from(m);
+        if a > m {
+            s.violations += 1;
+            s.worst_excess = s.worst_excess.max(a - m);
+        }
+    }
+    #[allow(clippy::cast_precision_loss)]
+    let k = s.with_core.max(1) as f64;
+    s.mean_lookup /= k;
+    s.mean_true_min /= k;
+    Ok(s)
+}
+
+fn check(a: &PofCheckArgs, ui: &Ui) -> Result<()> {
+    let vol = resolve::volume(&a.volume)?;
+    let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
+    let grid = BrickGrid::from_volume(&vol, a.volume.brick)?;
+    let table = PofTable::load(&a.pof, &vol, &grid, &tf)?;
+    let s = check_table(&vol, &grid, &tf, &table, a.views, a.seed, ui)?;
+    println!(
+        "{}: {} views ({} with a core), {} where the lookup exceeds the brute-force core minimum (worst by {:.2e}); mean lookup {:.4}, mean true minimum {:.4}",
+        a.pof.display(),
+        s.views,
+        s.with_core,
+        s.violations,
+        s.worst_excess,
+        s.mean_lookup,
+        s.mean_true_min
+    );
+    if s.violations > 0 {
+        bail!(
+            "{}: {} of {} views are not conservative",
+            a.pof.display(),
+            s.violations,
+            s.with_core
+        );
+    }
+    Ok(())
+}
+
+/// Opens a volume for the benchmark: a reader's file, or a catalogue raw file whose name
+/// carries its dims and type.
+fn bench_volume(spec: &str) -> Result<Volume> {
+    let path = Path::new(spec);
+    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+    if path.extension().and_then(|e| e.to_str()) == Some("raw") {
+        let parts: Vec<&str> = stem.rsplitn(3, '_').collect();
+        if parts.len() == 3 {
+            let dtype: DataType = match parts[0] {
+                "uint8" => DataType::U8,
+                "uint16" => DataType::U16,
+                "int16" => DataType::I16,
+                "float32" => DataType::F32,
+                other => other.parse().map_err(|e: String| anyhow!("{spec}: {e}"))?,
+            };
+            let dims = resolve::parse_list::<usize>(
+                "dims in the file name",
+                &parts[1].replace('x', ","),
+                Some(3),
+            )?;
+            return Ok(pofvr::volume::raw::open(
+                path,
+                &RawSpec::new([dims[0], dims[1], dims[2]], dtype),
+            )?);
+        }
+    }
+    Ok(Volume::open(path, None)?)
+}
+
+#[derive(Serialize)]
+struct EncodingReport {
+    encoding: String,
+    bytes_per_brick_per_basis: usize,
+}
+
+#[derive(Serialize)]
+struct VolumeReport {
+    volume: String,
+    dims: [usize; 3],
+    bricks: usize,
+    computed_bricks: u64,
+    stored_bricks: usize,
+    views: [usize; 2],
+    seconds: f64,
+    threads: usize,
+    brick_views_per_core_second: f64,
+    mean_pof: f64,
+    share_of_brick_views_at_least_half: f64,
+    encodings: Vec<EncodingReport>,
+    check: CheckSummary,
+}
+
+pub(crate) fn bench(a: &BenchPofArgs, ui: &Ui) -> Result<()> {
+    let mut cases: Vec<(String, Volume, TransferFunction)> = Vec::new();
+    let ph = pofvr::volume::phantom::Phantom::SheppLogan;
+    cases.push((
+        format!("phantom:head:{}", a.phantom),
+        ph.generate(a.phantom),
+        families::for_phantom(ph),
+    ));
+    for v in &a.volumes {
+        let vol = bench_volume(v).with_context(|| format!("bench pof: {v}"))?;
+        let tf = match &a.tf {
+            Some(p) => TransferFunction::from_file(p)?,
+            None => {
+                let g = BrickGrid::from_volume(&vol, 16)?;
+                families::auto_ramp(g.value_range())
+            }
+        };
+        cases.push((v.clone(), vol, tf));
+    }
+    let settings = a.knobs.settings(Encoding::Table, false)?;
+    let mut reports = Vec::new();
+    println!(
+        "{:<48} {:>8} {:>9} {:>8} {:>14} {:>9}  bytes/brick/basis (table u8 u16 cubic)",
+        "volume", "bricks", "computed", "secs", "brick-views/s", "mean POF"
+    );
+    for (name, vol, tf) in &cases {
+        let grid = BrickGrid::from_volume(vol, 16)?;
+        let sampled = SampledTf::new(tf, grid.value_range());
+        let nonempty: Vec<bool> = grid
+            .ids()
+            .map(|id| !sampled.is_empty(grid.range(id), &tf.weights))
+            .collect();
+        let built = build_table(vol, &grid, tf, &settings, None, ui, name)?;
+        let t = &built.table;
+        // How much the table can cull: its opacities over every stored brick and view cell.
+        let (mut sum, mut half, mut count) = (0f64, 0u64, 0u64);
+        for id in grid.ids().filter(|id| nonempty[id.index()]) {
+            for i in 0..settings.views[0] {
+                for j in 0..settings.views[1] {
+                    #[allow(clippy::cast_precision_loss)]
+                    let d = direction(
+                        (i as f64 + 0.5) / settings.views[0] as f64 * std::f64::consts::PI,
+                        (j as f64 + 0.5) / settings.views[1] as f64 * std::f64::consts::TAU,
+                    );
+                    let o = t.opacity(id, d, &tf.weights, PofMode::Conservative);
+                    sum += f64::from(o);
+                    half += u64::from(o >= 0.5);
+                    count += 1;
+                }
+            }
+        }
+        let views32 = settings.views.map(|v| u32::try_from(v).unwrap_or(u32::MAX));
+        let encodings = Encoding::ALL
+            .iter()
+            .map(|e| EncodingReport {
+                encoding: e.to_string(),
+                bytes_per_brick_per_basis: e.function_bytes(views32),
+            })
+            .collect::<Vec<_>>();
+        let check = check_table(vol, &grid, tf, t, 100, 7, ui)?;
+        #[allow(clippy::cast_precision_loss)]
+        let r = VolumeReport {
+            volume: name.clone(),
+            dims: vol.dims(),
+            bricks: grid.len(),
+            computed_bricks: built.computed_bricks,
+            stored_bricks: t.stored_bricks(),
+            views: settings.views,
+            seconds: built.seconds,
+            threads: rayon::current_num_threads(),
+            brick_views_per_core_second: rate(&built, &settings),
+            mean_pof: sum / count.max(1) as f64,
+            share_of_brick_views_at_least_half: half as f64 / count.max(1) as f64,
+            encodings,
+            check,
+        };
+        println!(
+            "{:<48} {:>8} {:>9} {:>8.2} {:>14.0} {:>9.3}  {}  (check: {} of {} views above the brute-force minimum)",
+            r.volume,
+            r.bricks,
+            r.computed_bricks,
+            r.seconds,
+            r.brick_views_per_core_second,
+            r.mean_pof,
+            r.encodings.iter().map(|e| e.bytes_per_brick_per_basis.to_string()).collect::<Vec<_>>().join(" "),
+            r.check.violations,
+            r.check.with_core
+        );
+        reports.push(r);
+    }
+    let json = serde_json::to_string_pretty(
+        &serde_json::json!({ "bench": "pof", "settings": format!("{settings:?}"), "volumes": reports }),
+    )?;
+    pofvr::io::write_bytes_atomic(&a.out, json.as_bytes())?;
+    eprintln!("report: {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,618 @@
+//! Stage 3: Plenoptic Opacity Functions (paper §3): per brick, per basis, the least opacity
+//! the ray caster composites for the brick alone, tabulated over view directions.
+//!
+//! ## What a POF value guarantees
+//!
+//! For brick `b`, basis `i` and the angular cell `(θ, φ)` of a view direction `d`, the
+//! stored opacity `α` satisfies, for *every* ray of a direction in that cell whose `t`-span
+//! inside the brick's index box is at least [`PofTable::core_length`] (`L`), and for every
+//! phase of the renderer's sample lattice: the opacity that
+//! [`crate::render::RayCaster::render_box`] composites for basis `i` alone (weight 1) is
+//! `≥ α`. Rays shorter than `L` (the footprint's rim) are exempt: they graze an edge and
+//! carry almost nothing, so a minimum over them would be 0 and cull nothing.
+//!
+//! Weights enter through Eq. 3 ([`PofTable::opacity`]); the result is capped at the
+//! early-termination threshold because a ray stops compositing there.
+//!
+//! ## How it is computed (see `build.rs`)
+//!
+//! Not by rendering every view (that is `reference.rs`, the slow twin used by tests and
+//! `pofvr pof check`), but from a lower bound that holds for all continuous ray positions
+//! and lattice phases at once: a chord of length `ℓ` holds `⌊ℓ/step⌋` disjoint windows of
+//! length `step`, each containing exactly one sample, and each sample's extinction is at
+//! least the minimum extinction over the voxel cells the window can touch.
+
+mod build;
+mod cubic;
+mod encoding;
+mod file;
+pub mod reference;
+#[cfg(test)]
+mod test;
+
+use std::path::Path;
+
+use glam::DVec3;
+
+use crate::brick::{BrickGrid, BrickId};
+use crate::render::{SampledTf, TransferFunction};
+use crate::volume::Volume;
+
+pub use encoding::Encoding;
+
+/// Largest stored per-basis opacity: keeps `ln(1 − α)` finite so that Eq. 3 with small
+/// weights never turns a saturated basis into full opacity.
+pub const ALPHA_MAX: f32 = 1.0 - 1.0 / 1_048_576.0;
+
+/// How several bases are combined at run time (paper §3.2.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PofMode {
+    /// Eq. 3 on the per-basis POFs: a lower bound of every core ray's opacity.
+    Conservative,
+    /// The minimum over the POF-set estimates at each basis's `q_min`: closer to the truth,
+    /// not guaranteed (never below `Conservative`). Needs a table built with `sets`.
+    Sets,
+}
+
+/// Knobs of the precompute.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PofSettings {
+    /// Sample views over (θ, φ): θ ∈ [0, π] in `views[0]` rows, φ ∈ [0, 2π) in `views[1]`
+    /// columns. Default `[36, 36]`.
+    pub views: [usize; 2],
+    /// How each POF is stored. Default [`Encoding::Table`].
+    pub encoding: Encoding,
+    /// Also store POF sets (the aggressive multi-basis mode). Default false.
+    pub sets: bool,
+    /// The renderer's sample distance, in units of the smallest spacing. Default 1.
+    pub step: f32,
+    /// The renderer's early-termination threshold; lookups are capped here. Default 0.99.
+    pub ert: f32,
+    /// Core length `L` in `t` units; `None` = half a brick. Default `None`.
+    pub core_length: Option<f32>,
+    /// Edge of the entry-face patches the bound is evaluated on, in voxels (≤ 0.5 keeps a
+    /// patch inside at most two cells per axis for step ≤ 0.5). Default 0.5.
+    pub pitch: f32,
+    /// Directions measured per cell edge: a cell's value is the minimum over a
+    /// `(subdiv+1)²` grid of directions including its borders. Default 2.
+    pub subdiv: usize,
+    /// Fraction of the measured optical depth kept, for directions between the measured
+    /// ones. Applied to optical depth so that Eq. 3 stays exact for one basis. Default 0.9.
+    pub margin: f32,
+}
+
+impl Default for PofSettings {
+    fn default() -> Self {
+        PofSettings {
+            views: [36, 36],
+            encoding: Encoding::Table,
+            sets: false,
+            step: 1.0,
+            ert: 0.99,
+            core_length: None,
+            pitch: 0.5,
+            subdiv: 2,
+            margin: 0.9,
+        }
+    }
+}
+
+/// Errors building, reading or writing POF tables.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PofError {
+    /// A setting is out of range.
+    #[error("POF setting {field}: {why}")]
+    Setting {
+        /// The setting.
+        field: &'static str,
+        /// What is wrong.
+        why: String,
+    },
+    /// The file could not be read.
+    #[error("{file}: {err}")]
+    Io {
+        /// The file.
+        file: String,
+        /// The cause.
+        #[source]
+        err: std::io::Error,
+    },
+    /// The file could not be written.
+    #[error(transparent)]
+    Write(#[from] crate::io::WriteError),
+    /// Not a POF file, or a structurally invalid one.
+    #[error("{file}: not a valid POF file: {why}")]
+    Format {
+        /// The file.
+        file: String,
+        /// What is wrong.
+        why: String,
+    },
+    /// A section's bytes do not match its checksum.
+    #[error("{file}: {section} section is corrupted: CRC32 {got:08x}, expected {expected:08x}")]
+    Crc {
+        /// The file.
+        file: String,
+        /// Which section.
+        section: &'static str,
+        /// Stored checksum.
+        expected: u32,
+        /// Checksum of the bytes read.
+        got: u32,
+    },
+    /// The file was built for another volume, brick size or family.
+    #[error("{file}: built for a different {what}: file has {in_file}, expected {expected} (rebuild it with `pofvr pof build`)")]
+    Mismatch {
+        /// The file.
+        file: String,
+        /// What differs.
+        what: &'static str,
+        /// The file's value.
+        in_file: String,
+        /// The value of the volume/family given.
+        expected: String,
+    },
+    /// POF sets were asked for but the table has none.
+    #[error("{file}: the table has no POF sets (build it with --sets)")]
+    NoSets {
+        /// The file.
+        file: String,
+    },
+}
+
+/// What a POF file was built for: the volume's and family's fingerprints and the knobs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PofMeta {
+    /// Voxel counts.
+    pub dims: [u64; 3],
+    /// Stored voxel type.
+    pub dtype: crate::volume::DataType,
+    /// Brick edge.
+    pub brick_size: u32,
+    /// Number of bricks.
+    pub brick_count: u32,
+    /// FNV-1a hash of every brick's value range.
+    pub range_hash: u64,
+    /// [`TransferFunction::bases_fingerprint`].
+    pub bases_fingerprint: u64,
+    /// Number of bases.
+    pub basis_count: u32,
+    /// View grid `[rows over θ, columns over φ]`.
+    pub views: [u32; 2],
+    /// Encoding.
+    pub encoding: Encoding,
+    /// POF sets present.
+    pub sets: bool,
+    /// Sample step.
+    pub step: f32,
+    /// Early termination threshold.
+    pub ert: f32,
+    /// Core length `L`.
+    pub core_length: f32,
+    /// Optical-depth margin.
+    pub margin: f32,
+    /// Patch pitch.
+    pub pitch: f32,
+    /// Direction subdivisions per cell.
+    pub subdiv: u32,
+}
+
+/// The POFs of every brick of a volume for one family, ready for lookups; built in memory
+/// or memory-mapped from a `.pof` file.
+pub struct PofTable {
+    meta: PofMeta,
+    bytes: file::Bytes,
+    index_offset: usize,
+    data_offset: usize,
+    record_len: usize,
+    source: String,
+}
+
+impl std::fmt::Debug for PofTable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PofTable")
+            .field("meta", &self.meta)
+            .field("source", &self.source)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Fingerprint of a volume's bricks: FNV-1a over every brick's value range.
+#[must_use]
+pub fn range_hash(grid: &BrickGrid) -> u64 {
+    let mut h = crate::render::transfer_function::Fnv::default();
+    for r in grid.ranges() {
+        h.write(&r.min.to_le_bytes());
+        h.write(&r.max.to_le_bytes());
+    }
+    h.0
+}
+
+impl PofTable {
+    /// Precomputes the POFs of every non-empty brick, in parallel over bricks;
+    /// `progress(done, total)` is called as bricks complete.
+    ///
+    /// # Errors
+    /// [`PofError::Setting`] for a bad view grid, step, threshold, core length, pitch or
+    /// margin, or a family whose basis count differs from `sampled`.
+    pub fn build(
+        volume: &Volume,
+        grid: &BrickGrid,
+        tf: &TransferFunction,
+        sampled: &SampledTf,
+        settings: &PofSettings,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<PofTable, PofError> {
+        Self::build_resumable(volume, grid, tf, sampled, settings, None, progress)
+    }
+
+    /// As [`PofTable::build`], saving finished bricks to `partial` as it goes and resuming
+    /// from what a previous, interrupted run left there (when it was made by the very same
+    /// build; otherwise it is started afresh). The caller deletes `partial` once the table
+    /// is saved.
+    ///
+    /// # Errors
+    /// As [`PofTable::build`], plus I/O errors on `partial`.
+    pub fn build_resumable(
+        volume: &Volume,
+        grid: &BrickGrid,
+        tf: &TransferFunction,
+        sampled: &SampledTf,
+        settings: &PofSettings,
+        partial: Option<&Path>,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<PofTable, PofError> {
+        build::build(volume, grid, tf, sampled, settings, partial, progress)
+    }
+
+    /// Writes the table to `path` (temp file + rename).
+    ///
+    /// # Errors
+    /// [`PofError::Write`] naming the path.
+    pub fn save(&self, path: &Path) -> Result<(), PofError> {
+        crate::io::write_bytes_atomic(path, self.bytes.as_slice())?;
+        Ok(())
+    }
+
+    /// Memory-maps `path`, checks every section's CRC and that it was built for this
+    /// volume, brick grid and family (weights and colours are free).
+    ///
+    /// # Errors
+    /// [`PofError::Io`], [`PofError::Format`], [`PofError::Crc`] or
+    /// [`PofError::Mismatch`], each naming the file.
+    pub fn load(
+        path: &Path,
+        volume: &Volume,
+        grid: &BrickGrid,
+        tf: &TransferFunction,
+    ) -> Result<PofTable, PofError> {
+        let t = Self::open(path)?;
+        t.check_matches(volume, grid, tf)?;
+        Ok(t)
+    }
+
+    /// Memory-maps and validates `path` without comparing it to a volume (`pof info`).
+    ///
+    /// # Errors
+    /// [`PofError::Io`], [`PofError::Format`] or [`PofError::Crc`] naming the file.
+    pub fn open(path: &Path) -> Result<PofTable, PofError> {
+        file::open(path)
+    }
+
+    /// Checks that the table was built for `volume`, `grid` and `tf`'s bases.
+    ///
+    /// # Errors
+    /// [`PofError::Mismatch`] naming what differs.
+    pub fn check_matches(
+        &self,
+        volume: &Volume,
+        grid: &BrickGrid,
+        tf: &TransferFunction,
+    ) -> Result<(), PofError> {
+        let m = &self.meta;
+        let mismatch = |what, in_file: String, expected: String| {
+            Err(PofError::Mismatch {
+                file: self.source.clone(),
+                what,
+                in_file,
+                expected,
+            })
+        };
+        let dims = volume.dims().map(|d| d as u64);
+        if m.dims != dims {
+            return mismatch("volume size", format!("{:?}", m.dims), format!("{dims:?}"));
+        }
+        if m.dtype != volume.data_type() {
+            return mismatch(
+                "voxel type",
+                m.dtype.to_string(),
+                volume.data_type().to_string(),
+            );
+        }
+        if m.brick_size as usize != grid.brick_size() {
+            return mismatch(
+                "brick size",
+                m.brick_size.to_string(),
+                grid.brick_size().to_string(),
+            );
+        }
+        let h = range_hash(grid);
+        if m.range_hash != h || m.brick_count as usize != grid.len() {
+            return mismatch(
+                "volume (brick value ranges)",
+                format!("hash {:016x}", m.range_hash),
+                format!("hash {h:016x}"),
+            );
+        }
+        if m.basis_count as usize != tf.bases.len() {
+            return mismatch(
+                "transfer-function family (basis count)",
+                m.basis_count.to_string(),
+                tf.bases.len().to_string(),
+            );
+        }
+        let f = tf.bases_fingerprint();
+        if m.bases_fingerprint != f {
+            return mismatch(
+                "transfer-function family (bases)",
+                format!("{:016x}", m.bases_fingerprint),
+                format!("{f:016x}"),
+            );
+        }
+        Ok(())
+    }
+
+    /// What the table was built for.
+    #[must_use]
+    pub fn meta(&self) -> &PofMeta {
+        &self.meta
+    }
+
+    /// Core length `L` in the `t` units of [`crate::render::IndexRay`].
+    #[must_use]
+    pub fn core_length(&self) -> f32 {
+        self.meta.core_length
+    }
+
+    /// The sample step the table bounds.
+    #[must_use]
+    pub fn step(&self) -> f32 {
+        self.meta.step
+    }
+
+    /// The early-termination threshold lookups are capped at.
+    #[must_use]
+    pub fn ert(&self) -> f32 {
+        self.meta.ert
+    }
+
+    /// True when the table holds POF sets.
+    #[must_use]
+    pub fn has_sets(&self) -> bool {
+        self.meta.sets
+    }
+
+    /// Stored bytes per non-empty brick and basis (POF sets included when present).
+    #[must_use]
+    #[allow(clippy::cast_precision_loss)]
+    pub fn bytes_per_brick_per_basis(&self) -> f64 {
+        self.record_len as f64 / f64::from(self.meta.basis_count.max(1))
+    }
+
+    /// Total file size in bytes.
+    #[must_use]
+    pub fn file_len(&self) -> usize {
+        self.bytes.as_slice().len()
+    }
+
+    /// Number of bricks with a stored POF (not empty for every basis).
+    #[must_use]
+    pub fn stored_bricks(&self) -> usize {
+        let n = self.meta.brick_count as usize;
+        (0..n)
+            .filter(|b| self.slot(BrickId(*b as u32)).is_some())
+            .count()
+    }
+
+    fn slot(&self, brick: BrickId) -> Option<usize> {
+        let i = brick.index();
+        if i >= self.meta.brick_count as usize {
+            return None;
+        }
+        let at = self.index_offset + 4 * i;
+        let b = self.bytes.as_slice();
+        let s = u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]);
+        (s != u32::MAX).then_some(s as usize)
+    }
+
+    fn record(&self, slot: usize) -> &[u8] {
+        let start = self.data_offset + slot * self.record_len;
+        &self.bytes.as_slice()[start..start + self.record_len]
+    }
+
+    /// The view cell `(row, column)` of a direction.
+    #[must_use]
+    pub fn cell_of(&self, dir: DVec3) -> (usize, usize) {
+        cell_of(self.meta.views, dir)
+    }
+
+    /// Decoded per-basis opacity of `brick` in cell `(i, j)` for basis `basis`
+    /// (0 for empty bricks). `set_of`: `Some(s)` reads basis `basis` at basis `s`'s `q_min`.
+    fn value(&self, rec: &[u8], basis: usize, set_of: Option<usize>, cell: (usize, usize)) -> f32 {
+        let p = self.meta.basis_count as usize;
+        let idx = match set_of {
+            None => basis,
+            Some(s) if s == basis => basis,
+            // Sets of basis s: the p−1 other bases in order, after the p conservative POFs.
+            Some(s) => p + s * (p - 1) + if basis < s { basis } else { basis - 1 },
+        };
+        let size = self.meta.encoding.function_bytes(self.meta.views);
+        encoding::decode(
+            self.meta.encoding,
+            &rec[idx * size..(idx + 1) * size],
+            self.meta.views,
+            cell,
+        )
+    }
+
+    /// The per-basis opacities of `brick` in view cell `cell` (conservative POFs).
+    #[must_use]
+    pub fn basis_opacities(&self, brick: BrickId, cell: (usize, usize)) -> Vec<f32> {
+        let p = self.meta.basis_count as usize;
+        match self.slot(brick) {
+            None => vec![0.0; p],
+            Some(s) => {
+                let rec = self.record(s);
+                (0..p).map(|i| self.value(rec, i, None, cell)).collect()
+            }
+        }
+    }
+
+    fn cell_opacity(
+        &self,
+        rec: &[u8],
+        cell: (usize, usize),
+        weights: &[f32],
+        mode: PofMode,
+    ) -> f32 {
+        let p = self.meta.basis_count as usize;
+        let combine = |set_of: Option<usize>| -> f32 {
+            // Eq. 3 in log space: 1 − Π (1 − αᵢ)^kᵢ.
+            let mut log_t = 0.0f64;
+            for (i, k) in weights.iter().enumerate().take(p) {
+                if *k > 0.0 {
+                    let mut a = self.value(rec, i, None, cell);
+                    if set_of.is_some() {
+                        // Each set entry is at least the basis's own POF; separately fitted
+                        // cubics could lose that, so it is restored here.
+                        a = a.max(self.value(rec, i, set_of, cell));
+                    }
+                    let a = a.clamp(0.0, ALPHA_MAX);
+                    log_t += f64::from(*k) * (1.0 - f64::from(a)).ln();
+                }
+            }
+            #[allow(clippy::cast_possible_truncation)]
+            let a = (1.0 - log_t.exp()) as f32;
+            a
+        };
+        let a = match mode {
+            PofMode::Sets if self.meta.sets => (0..p)
+                .map(|s| combine(Some(s)))
+                .fold(f32::INFINITY, f32::min),
+            _ => combine(None),
+        };
+        a.clamp(0.0, self.meta.ert)
+    }
+
+    /// Run-time opacity of `brick` seen along `view_dir` (unit world direction, eye to
+    /// scene) with basis weights `weights`: every ray of that direction whose span in the
+    /// brick is at least [`PofTable::core_length`] composites at least this much
+    /// (`Conservative`). `Sets` on a table without sets falls back to `Conservative`.
+    #[must_use]
+    pub fn opacity(&self, brick: BrickId, view_dir: DVec3, weights: &[f32], mode: PofMode) -> f32 {
+        let Some(s) = self.slot(brick) else {
+            return 0.0;
+        };
+        let cell = self.cell_of(view_dir);
+        self.cell_opacity(self.record(s), cell, weights, mode)
+    }
+
+    /// As [`PofTable::opacity`] for every direction within `half_angle` radians of `axis`
+    /// (perspective views: the cone under which the eye sees the brick): the minimum over
+    /// every view cell the cone touches.
+    #[must_use]
+    pub fn opacity_cone(
+        &self,
+        brick: BrickId,
+        axis: DVec3,
+        half_angle: f64,
+        weights: &[f32],
+        mode: PofMode,
+    ) -> f32 {
+        let Some(s) = self.slot(brick) else {
+            return 0.0;
+        };
+        let rec = self.record(s);
+        let mut m = f32::INFINITY;
+        for cell in cone_cells(self.meta.views, axis, half_angle) {
+            m = m.min(self.cell_opacity(rec, cell, weights, mode));
+            if m <= 0.0 {
+                break;
+            }
+        }
+        if m.is_finite() {
+            m
+        } else {
+            0.0
+        }
+    }
+}
+
+/// `(θ, φ)` of a unit direction: θ from +z in [0, π], φ from +x towards +y in [0, 2π).
+#[must_use]
+pub fn angles(dir: DVec3) -> (f64, f64) {
+    let d = dir.normalize_or_zero();
+    let theta = d.z.clamp(-1.0, 1.0).acos();
+    let phi = d.y.atan2(d.x).rem_euclid(std::f64::consts::TAU);
+    (theta, phi)
+}
+
+/// The unit direction of `(θ, φ)`.
+#[must_use]
+pub fn direction(theta: f64, phi: f64) -> DVec3 {
+    let (st, ct) = theta.sin_cos();
+    let (sp, cp) = phi.sin_cos();
+    DVec3::new(st * cp, st * sp, ct)
+}
+
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_precision_loss
+)]
+fn cell_of(views: [u32; 2], dir: DVec3) -> (usize, usize) {
+    let (n, m) = (views[0] as usize, views[1] as usize);
+    let (theta, phi) = angles(dir);
+    let i = ((theta / std::f64::consts::PI * n as f64) as usize).min(n - 1);
+    let j = ((phi / std::f64::consts::TAU * m as f64) as usize).min(m - 1);
+    (i, j)
+}
+
+/// Every view cell that directions within `half_angle` of `axis` can fall in.
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_precision_loss,
+    clippy::cast_possible_wrap
+)]
+fn cone_cells(views: [u32; 2], axis: DVec3, half_angle: f64) -> Vec<(usize, usize)> {
+    use std::f64::consts::{PI, TAU};
+    let (n, m) = (views[0] as usize, views[1] as usize);
+    let (theta, phi) = angles(axis);
+    let beta = half_angle.max(0.0);
+    if beta >= PI {
+        return (0..n).flat_map(|i| (0..m).map(move |j| (i, j))).collect();
+    }
+    let (t0, t1) = ((theta - beta).max(0.0), (theta + beta).min(PI));
+    let i0 = ((t0 / PI * n as f64) as usize).min(n - 1);
+    let i1 = ((t1 / PI * n as f64) as usize).min(n - 1);
+    // The cone's azimuth spread about its axis is asin(sin β / sin θ); a pole inside the
+    // cone spreads it over every azimuth.
+    let all_phi = theta - beta <= 0.0 || theta + beta >= PI || beta.sin() >= theta.sin();
+    let cols: Vec<usize> = if all_phi {
+        (0..m).collect()
+    } else {
+        let dphi = (beta.sin() / theta.sin()).asin();
+        let w = TAU / m as f64;
+        let j0 = ((phi - dphi) / w).floor() as i64;
+        let j1 = ((phi + dphi) / w).floor() as i64;
+        let span = (j1 - j0 + 1).min(m as i64);
+        (0..span)
+            .map(|k| (j0 + k).rem_euclid(m as i64) as usize)
+            .collect()
+    };
+    (i0..=i1)
+        .flat_map(|i| cols.iter().map(move |j| (i, *j)))
+        .collect()
+}
