@@ -6,6 +6,7 @@
 //! as not available, with the reason, instead of being left out silently.
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Result};
@@ -14,6 +15,7 @@ use pofvr::cull::range_bound::RangeBound;
 use pofvr::cull::{CullMode, OpacityBound};
 use pofvr::distribute::Curve;
 use pofvr::frame::{render_frame, FrameOptions, FrameStats, RenderJob};
+use pofvr::pof::{Encoding, PofSettings, PofTable};
 use pofvr::render::{Camera, Image, Projection, RenderSettings};
 use serde::Serialize;
 use serde_json::json;
@@ -50,9 +52,21 @@ pub(crate) struct ExperimentArgs {
     /// > default: 512x512 (128x128 with --quick)
     #[arg(long, value_name = "WxH")]
     pub(crate) size: Option<String>,
-    /// Precomputed POFs for the pof modes (built on the fly when absent).
+    /// POFs (table encoding) for the pof modes: read when the file exists, otherwise built
+    /// and saved there for the next run. The u8, u16 and cubic encodings are always built
+    /// (their construction is figure 1).
+    /// > default: built in memory, not saved
     #[arg(long, value_name = "FILE.pof")]
     pub(crate) pof: Option<PathBuf>,
+    /// POF view grid (θ rows × φ columns); the paper uses 36,36 (1296 views).
+    /// > default: 36,36 (18,18 with --quick)
+    #[arg(long, value_name = "N,M")]
+    pub(crate) pof_views: Option<String>,
+    /// Also build POF sets (the aggressive pof-set mode). They cost far more than the
+    /// tables to build (about 20× on the phantom).
+    /// > default: on, off with --quick
+    #[arg(long, value_name = "BOOL", num_args = 0..=1, default_missing_value = "true")]
+    pub(crate) pof_sets: Option<bool>,
     /// Random views of the conservativeness audit.
     /// > default: 100 (12 with --quick)
     #[arg(long)]
@@ -80,10 +94,6 @@ pub(crate) struct ExperimentArgs {
     #[arg(long, default_value_t = 1)]
     pub(crate) seed: u64,
 }
-
-/// Why the POF methods have no data in this build.
-const NO_POFS: &str = "not available: POFs not built in this version (the POF precompute, \
-                       pofvr::pof, is not part of this build)";
 
 /// A way of culling, as the figures name it.
 struct Method<'a> {
@@ -121,6 +131,7 @@ struct Plan {
     ert: f32,
     brick: usize,
     projection: &'static str,
+    pof_views: [usize; 2],
 }
 
 /// A deterministic generator for the audit's views (SplitMix64).
@@ -208,9 +219,6 @@ fn machine() -> serde_json::Value {
 #[allow(clippy::too_many_lines)]
 pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     let t_start = Instant::now();
-    if a.pof.is_some() {
-        bail!("--pof: this build has no POF support yet (POF tables cannot be read)");
-    }
     let (width, height) =
         resolve::size(
             a.size
@@ -229,6 +237,16 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     if !(a.cull_threshold > 0.0 && a.cull_threshold <= 1.0) {
         bail!("--cull-threshold {} must be in (0, 1]", a.cull_threshold);
     }
+    let pv = resolve::parse_list::<usize>(
+        "--pof-views",
+        a.pof_views
+            .as_deref()
+            .unwrap_or(if a.quick { "18,18" } else { "36,36" }),
+        Some(2),
+    )?;
+    if pv.iter().any(|v| !(2..=360).contains(v)) {
+        bail!("--pof-views {pv:?}: each count must be in 2..=360");
+    }
     let plan = Plan {
         width,
         height,
@@ -245,6 +263,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         ert: RenderSettings::default().ert,
         brick: a.volume.brick,
         projection: "orthographic",
+        pof_views: [pv[0], pv[1]],
     };
 
     let sp = ui.spinner("opening and bricking the volume");
@@ -254,8 +273,131 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     sp.finish_and_clear();
     let mut out = ReportDir::create(&a.out)?;
     let base_weights = job.tf.weights.clone();
+    let mut summary = serde_json::Map::new();
 
-    // The bounds every method needs. POF tables are not part of this build.
+    // --- 1. POF construction ----------------------------------------------------------
+    // Built first: the culling methods below read them.
+    let mut pof_rows: Vec<PofBuildRow> = Vec::new();
+    let want_sets = a.pof_sets.unwrap_or(!a.quick);
+    let table = match &a.pof {
+        Some(p) if p.exists() => {
+            let sp = ui.spinner(&format!("reading {}", p.display()));
+            let t = PofTable::load(p, &job.volume, &job.grid, &job.tf)?;
+            sp.finish_and_clear();
+            if t.meta().encoding != Encoding::Table {
+                bail!(
+                    "--pof {}: holds {} POFs; the experiment reads the table encoding \
+                     (build it with `pofvr pof build --encoding table`)",
+                    p.display(),
+                    t.meta().encoding
+                );
+            }
+            pof_rows.push(PofBuildRow::of(
+                &t,
+                Encoding::Table,
+                &format!("read from {}", p.display()),
+                None,
+            ));
+            t
+        }
+        _ => {
+            let (t, row) = build_pofs(&job, plan.pof_views, Encoding::Table, false, ui)?;
+            if let Some(p) = &a.pof {
+                t.save(p)?;
+            }
+            pof_rows.push(row);
+            t
+        }
+    };
+    let mut cubic = None;
+    for enc in [Encoding::U8, Encoding::U16, Encoding::Cubic] {
+        let (t, row) = build_pofs(&job, plan.pof_views, enc, false, ui)?;
+        pof_rows.push(row);
+        if enc == Encoding::Cubic {
+            cubic = Some(t);
+        }
+    }
+    let cubic = cubic.expect("the cubic encoding was built");
+    // POF sets: read from --pof when it has them, else built when asked for.
+    let sets_table = if table.has_sets() {
+        None
+    } else if want_sets {
+        let (t, row) = build_pofs(&job, plan.pof_views, Encoding::Table, true, ui)?;
+        pof_rows.push(row);
+        Some(t)
+    } else {
+        None
+    };
+    let sets: Option<&PofTable> = if table.has_sets() {
+        Some(&table)
+    } else {
+        sets_table.as_ref()
+    };
+    let mut fig1 = Csv::new(&[
+        "encoding",
+        "sets",
+        "source",
+        "views",
+        "seconds",
+        "computed_bricks",
+        "brick_views_per_second_per_core",
+        "bytes_per_brick_per_basis",
+        "stored_bricks",
+        "file_bytes",
+        "file_mb",
+    ]);
+    for r in &pof_rows {
+        fig1.push(vec![
+            r.encoding.into(),
+            (if r.sets { "yes" } else { "no" }).into(),
+            r.source.clone().into(),
+            r.views.clone().into(),
+            r.seconds.into(),
+            r.computed_bricks.into(),
+            r.rate.into(),
+            r.bytes_per_brick_per_basis.into(),
+            r.stored_bricks.into(),
+            r.file_bytes.into(),
+            r.file_mb().into(),
+        ]);
+    }
+    out.csv("fig1_pof_construction.csv", &fig1)?;
+    out.write(
+        "fig1_pof_storage.svg",
+        stacked_bars(
+            &format!(
+                "POF storage per encoding ({}×{} views, {} bases)",
+                plan.pof_views[0],
+                plan.pof_views[1],
+                job.tf.bases.len()
+            ),
+            &pof_rows
+                .iter()
+                .map(|r| {
+                    if r.sets {
+                        format!("{} + sets", r.encoding)
+                    } else {
+                        r.encoding.to_string()
+                    }
+                })
+                .collect::<Vec<_>>(),
+            "encoding",
+            "megabytes",
+            &[Stack {
+                name: "file size".into(),
+                values: pof_rows.iter().map(PofBuildRow::file_mb).collect(),
+            }],
+        )?
+        .as_bytes(),
+    )?;
+    let pof_json = json!({
+        "views": plan.pof_views,
+        "threads": rayon::current_num_threads(),
+        "builds": pof_rows,
+    });
+    out.json("fig1_pof_construction.json", &pof_json)?;
+    summary.insert("pof_construction".into(), pof_json);
+
     #[allow(clippy::cast_precision_loss)]
     let range_bound = RangeBound::new(
         &job.grid,
@@ -276,24 +418,28 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         Method {
             name: "pof-table",
             mode: CullMode::Pof,
-            bound: None,
-            missing: Some(NO_POFS.into()),
+            bound: Some(&table),
+            missing: None,
             conservative: true,
             about: "conservative POF culling, POFs stored as f32 tables",
         },
         Method {
             name: "pof-cubic",
             mode: CullMode::Pof,
-            bound: None,
-            missing: Some(NO_POFS.into()),
+            bound: Some(&cubic),
+            missing: None,
             conservative: true,
             about: "conservative POF culling, POFs stored as cubic polynomials",
         },
         Method {
             name: "pof-set",
             mode: CullMode::PofSet,
-            bound: None,
-            missing: Some(NO_POFS.into()),
+            bound: sets.map(|t| t as &dyn OpacityBound),
+            missing: sets.is_none().then(|| {
+                "not measured: POF sets were not built (they are skipped with --quick for \
+                 their build cost; pass --pof-sets)"
+                    .into()
+            }),
             conservative: false,
             about: "aggressive POF-set culling (not guaranteed; audited for information)",
         },
@@ -330,16 +476,6 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     let none = method("none");
     let thr = plan.cull_threshold;
     let mut html = Html::new();
-    let mut summary = serde_json::Map::new();
-
-    // --- 1. POF construction --------------------------------------------------------------
-    let pof_json = json!({
-        "available": false,
-        "reason": NO_POFS,
-        "encodings": ["table", "u8", "u16", "cubic"],
-    });
-    out.json("fig1_pof_construction.json", &pof_json)?;
-    summary.insert("pof_construction".into(), pof_json);
 
     // --- 2. Culling effectiveness vs view (Fig. 4) ----------------------------------------
     let avail: Vec<&Method<'_>> = methods.iter().filter(|m| m.available()).collect();
@@ -961,14 +1097,56 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     );
 
     html.h2("1. POF construction");
-    html.note(
-        "na",
-        &format!(
-            "{NO_POFS}. Construction time, brick-views per second per core and storage per \
-             encoding (table, u8/u16, cubic) are measured once POF tables can be built."
-        ),
+    html.p(&format!(
+        "POFs of every non-empty brick over a {}×{} view grid ({} views), per basis, in each \
+         encoding, and the table with POF sets (the aggressive mode) when built. Rates are \
+         brick-views per second per worker thread ({} threads).",
+        plan.pof_views[0],
+        plan.pof_views[1],
+        plan.pof_views[0] * plan.pof_views[1],
+        rayon::current_num_threads()
+    ));
+    html.table(
+        &[
+            "encoding",
+            "source",
+            "seconds",
+            "brick-views/s per core",
+            "bytes per brick per basis",
+            "file MB",
+        ],
+        &pof_rows
+            .iter()
+            .map(|r| {
+                vec![
+                    if r.sets {
+                        format!("{} + sets", r.encoding)
+                    } else {
+                        r.encoding.to_string()
+                    },
+                    r.source.clone(),
+                    r.seconds.map_or_else(|| "-".into(), |s| format!("{s:.2}")),
+                    r.rate.map_or_else(|| "-".into(), |s| format!("{s:.0}")),
+                    format!("{:.0}", r.bytes_per_brick_per_basis),
+                    format!("{:.3}", r.file_mb()),
+                ]
+            })
+            .collect::<Vec<_>>(),
     );
-    html.data(&["fig1_pof_construction.json"]);
+    if let (Some(t), Some(c)) = (
+        pof_rows.iter().find(|r| r.encoding == "table" && !r.sets),
+        pof_rows.iter().find(|r| r.encoding == "cubic"),
+    ) {
+        html.p(&format!(
+            "Table vs cubic storage: {:.0} vs {:.0} bytes per brick per basis ({:.1}× smaller; \
+             the paper: 55 MB vs 5 MB for one basis on the Visible Woman, 36×36 views).",
+            t.bytes_per_brick_per_basis,
+            c.bytes_per_brick_per_basis,
+            t.bytes_per_brick_per_basis / c.bytes_per_brick_per_basis.max(1e-9)
+        ));
+    }
+    html.img("fig1_pof_storage.svg", "POF storage per encoding");
+    html.data(&["fig1_pof_construction.csv", "fig1_pof_construction.json"]);
 
     html.h2("2. Culling effectiveness vs view (paper Fig. 4)");
     html.img("fig4_culling_vs_view.svg", "visible bricks vs azimuth");
@@ -1159,6 +1337,93 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// One POF build (or read) of figure 1.
+#[derive(Serialize)]
+struct PofBuildRow {
+    encoding: &'static str,
+    sets: bool,
+    views: String,
+    source: String,
+    seconds: Option<f64>,
+    computed_bricks: Option<u64>,
+    /// Brick-views per second per worker thread.
+    rate: Option<f64>,
+    bytes_per_brick_per_basis: f64,
+    stored_bricks: usize,
+    file_bytes: usize,
+}
+
+impl PofBuildRow {
+    fn of(t: &PofTable, encoding: Encoding, source: &str, built: Option<(f64, u64)>) -> Self {
+        let views = t.meta().views;
+        #[allow(clippy::cast_precision_loss)]
+        let rate = built.map(|(s, n)| {
+            n as f64 * f64::from(views[0]) * f64::from(views[1])
+                / s.max(1e-9)
+                / rayon::current_num_threads() as f64
+        });
+        PofBuildRow {
+            encoding: encoding.name(),
+            sets: t.has_sets(),
+            views: format!("{}x{}", views[0], views[1]),
+            source: source.to_string(),
+            seconds: built.map(|b| b.0),
+            computed_bricks: built.map(|b| b.1),
+            rate,
+            bytes_per_brick_per_basis: t.bytes_per_brick_per_basis(),
+            stored_bricks: t.stored_bricks(),
+            file_bytes: t.file_len(),
+        }
+    }
+
+    #[allow(clippy::cast_precision_loss)]
+    fn file_mb(&self) -> f64 {
+        self.file_bytes as f64 / 1e6
+    }
+}
+
+/// Builds the POFs of `job`'s volume and family in one encoding, timed, with a progress bar.
+fn build_pofs(
+    job: &RenderJob,
+    views: [usize; 2],
+    encoding: Encoding,
+    sets: bool,
+    ui: &Ui,
+) -> Result<(PofTable, PofBuildRow)> {
+    let settings = PofSettings {
+        views,
+        encoding,
+        sets,
+        step: job.settings.step,
+        ert: job.settings.ert,
+        ..PofSettings::default()
+    };
+    let bar = ui.bar(0, &format!("fig 1: POFs, {encoding}"));
+    let total = AtomicU64::new(0);
+    let t = Instant::now();
+    let table = PofTable::build(
+        &job.volume,
+        &job.grid,
+        &job.tf,
+        &job.sampled,
+        &settings,
+        &|done, n| {
+            total.store(n, Ordering::Relaxed);
+            bar.set_length(n);
+            bar.set_position(done);
+        },
+    )?;
+    let seconds = t.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    let row = PofBuildRow::of(
+        &table,
+        encoding,
+        "built",
+        Some((seconds, total.load(Ordering::Relaxed))),
+    );
+    Ok((table, row))
 }
 
 /// What the threshold rule found in one culled frame.
