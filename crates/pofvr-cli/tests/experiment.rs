@@ -78,6 +78,8 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
             SIZE,
             "--out",
             "report",
+            "--pof",
+            "head.pof",
             "--quiet",
         ],
         dir.path(),
@@ -104,6 +106,8 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
         "index.html",
         "report.json",
         "fig1_pof_construction.json",
+        "fig1_pof_construction.csv",
+        "fig1_pof_storage.svg",
         "fig4_culling_vs_view.csv",
         "fig4_culling_vs_view.svg",
         "fig5_rank_breakdown.csv",
@@ -164,7 +168,7 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
 
     // Fig. 4: 18 views per measured method; the numbers are those `render --stats` gives.
     let fig4 = read_csv(&rep.join("fig4_culling_vs_view.csv"));
-    for m in ["none", "exact", "range-bound"] {
+    for m in ["none", "pof-table", "pof-cubic", "exact", "range-bound"] {
         let rows: Vec<_> = fig4.iter().filter(|r| r["method"] == m).collect();
         assert_eq!(rows.len(), 18, "{m}");
         let az: Vec<f64> = rows.iter().map(|r| num(r, "azimuth_deg")).collect();
@@ -248,13 +252,42 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
         serde_json::from_slice(&std::fs::read(rep.join("audit.json")).unwrap()).unwrap();
     assert_eq!(audit["conservative_violations"], 0, "{audit:#}");
     let rows = read_csv(&rep.join("audit.csv"));
-    assert_eq!(rows.len(), 12 * 2, "12 views × (exact, range-bound)");
+    assert_eq!(
+        rows.len(),
+        12 * 4,
+        "12 views × (pof-table, pof-cubic, exact, range-bound)"
+    );
     assert!(rows.iter().all(|r| num(r, "violations") == 0.0));
     assert!(
         rows.iter().map(|r| num(r, "culled")).sum::<f64>() > 0.0,
         "the audit checked frames where something was culled"
     );
     assert!(html.contains("PASS"), "the audit verdict is on the page");
+
+    // Fig. 1: every encoding built, sized as the encoding says (18×18 views with --quick:
+    // 4, 1 and 2 bytes per view, the cubic's 10 coefficients in 40 bytes), and the table
+    // saved to --pof as `pof info` reads it.
+    let fig1 = read_csv(&rep.join("fig1_pof_construction.csv"));
+    let per_basis = |enc: &str| {
+        let r = fig1.iter().find(|r| r["encoding"] == enc).unwrap();
+        assert_eq!(r["views"], "18x18");
+        assert!(num(r, "seconds") > 0.0 && num(r, "brick_views_per_second_per_core") > 0.0);
+        num(r, "bytes_per_brick_per_basis")
+    };
+    assert_eq!(per_basis("table"), 4.0 * 324.0);
+    assert_eq!(per_basis("u8"), 324.0);
+    assert_eq!(per_basis("u16"), 2.0 * 324.0);
+    assert_eq!(per_basis("cubic"), 40.0);
+    let o = pofvr(&["pof", "info", "head.pof", "--json"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(info["encoding"], "table");
+    assert_eq!(info["views"], serde_json::json!([18, 18]));
+    let table = fig1.iter().find(|r| r["encoding"] == "table").unwrap();
+    assert_eq!(
+        num(table, "file_bytes"),
+        info["file_bytes"].as_f64().unwrap()
+    );
 }
 
 #[test]

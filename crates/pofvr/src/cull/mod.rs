@@ -453,8 +453,22 @@ impl OpacityBound for crate::pof::PofTable {
     fn opacity(&self, brick: BrickId, dir: DVec3, weights: &[f32], aggressive: bool) -> f32 {
         crate::pof::PofTable::opacity(self, brick, dir, weights, pof_mode(self, aggressive))
     }
-    fn opacity_cone(&self, brick: BrickId, axis: DVec3, half_angle: f64, weights: &[f32], aggressive: bool) -> f32 {
-        crate::pof::PofTable::opacity_cone(self, brick, axis, half_angle, weights, pof_mode(self, aggressive))
+    fn opacity_cone(
+        &self,
+        brick: BrickId,
+        axis: DVec3,
+        half_angle: f64,
+        weights: &[f32],
+        aggressive: bool,
+    ) -> f32 {
+        crate::pof::PofTable::opacity_cone(
+            self,
+            brick,
+            axis,
+            half_angle,
+            weights,
+            pof_mode(self, aggressive),
+        )
     }
 }
 
