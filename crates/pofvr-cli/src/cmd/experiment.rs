@@ -150,6 +150,8 @@ impl SplitMix {
     }
 }
 
+// `..default()` keeps this compiling when FrameOptions gains fields (MPI).
+#[allow(clippy::needless_update)]
 fn opts(mode: CullMode, threshold: f32, ranks: usize, curve: Curve) -> FrameOptions {
     FrameOptions {
         cull: mode,
@@ -710,8 +712,9 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
                 tl.push((rf, st.frame_ms));
                 sl.push((rf, speedup));
                 bl.push((rf, lb));
-                if best_speedup.as_ref().map_or(true, |b| speedup > b.2) {
-                    best_speedup = Some((name.clone(), r, speedup));
+                match &best_speedup {
+                    Some(b) if b.2 >= speedup => {}
+                    _ => best_speedup = Some((name.clone(), r, speedup)),
                 }
                 pb.inc(1);
             }
@@ -825,7 +828,9 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         "culled",
         "frame_ms",
     ]);
-    let mut fig8_bars: Vec<(String, Vec<String>, Vec<f64>, Vec<f64>)> = fig8_methods
+    // Per method: categories (weights), visible and culled counts.
+    type Bars = (String, Vec<String>, Vec<f64>, Vec<f64>);
+    let mut fig8_bars: Vec<Bars> = fig8_methods
         .iter()
         .map(|m| (m.name.to_string(), Vec::new(), Vec::new(), Vec::new()))
         .collect();
