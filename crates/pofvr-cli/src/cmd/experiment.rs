@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use pofvr::cull::range_bound::RangeBound;
 use pofvr::cull::{CullMode, OpacityBound};
@@ -89,6 +89,11 @@ pub(crate) struct ExperimentArgs {
     /// > default: 3 (1 with --quick)
     #[arg(long)]
     pub(crate) reps: Option<usize>,
+    /// Internal: render one timed point of figures 5 and 6 in this process and print its
+    /// statistics as JSON. The experiment runs itself so with `--threads RANKS`, giving each
+    /// in-process rank one core as in the paper.
+    #[arg(long, hide = true, value_name = "RANKS,CURVE,METHOD")]
+    pub(crate) point: Option<String>,
     /// Seed of the audit's random views.
     /// > default: 1
     #[arg(long, default_value_t = 1)]
@@ -215,7 +220,20 @@ fn machine() -> serde_json::Value {
                 .map(|(_, v)| v.trim().to_string())
         })
         .unwrap_or_else(|| "unknown".into());
-    json!({ "cores": cores, "threads": rayon::current_num_threads(), "cpu": cpu, "os": std::env::consts::OS })
+    json!({
+        "cores": cores,
+        "threads": rayon::current_num_threads(),
+        "cpu": cpu,
+        "os": std::env::consts::OS,
+        "load_average_at_start": load_average(),
+    })
+}
+
+/// The 1, 5 and 15 minute load averages (Linux), for judging the timings.
+fn load_average() -> Option<String> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
 }
 
 #[allow(clippy::too_many_lines)]
@@ -268,11 +286,15 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         pof_views: [pv[0], pv[1]],
     };
 
+    let mach = machine();
     let sp = ui.spinner("opening and bricking the volume");
     let vol = resolve::volume(&a.volume)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
     let mut job = RenderJob::new(vol, tf, a.volume.brick, RenderSettings::default())?;
     sp.finish_and_clear();
+    if let Some(p) = &a.point {
+        return run_point(a, &job, &plan, p);
+    }
     let mut out = ReportDir::create(&a.out)?;
     let base_weights = job.tf.weights.clone();
     let mut summary = serde_json::Map::new();
@@ -570,6 +592,20 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     );
 
     // --- 3. Per-rank breakdown (Fig. 5) -------------------------------------------------
+    // Timed points run in child processes with one worker thread per rank; they read the
+    // table from disk.
+    let scratch_pof = out.path(".experiment-table.pof.tmp");
+    let pof_file: Option<PathBuf> = if primary.name == "pof-table" {
+        match &a.pof {
+            Some(p) if p.exists() => Some(p.clone()),
+            _ => {
+                table.save(&scratch_pof)?;
+                Some(scratch_pof.clone())
+            }
+        }
+    } else {
+        None
+    };
     let test_cam = Camera::orbit(
         &job.volume,
         plan.view[0],
@@ -593,12 +629,13 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     ]);
     let mut fig5_frames = Vec::new();
     for m in [none, primary] {
-        let (_, st) = timed(
-            &job,
-            m,
-            &test_cam,
-            &opts(m.mode, thr, breakdown_ranks, Curve::Hilbert),
-            plan.reps,
+        let st = point(
+            a,
+            &plan,
+            pof_file.as_deref(),
+            breakdown_ranks,
+            Curve::Hilbert,
+            m.name,
         )?;
         for r in &st.ranks {
             fig5.push(vec![
@@ -692,7 +729,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
             let (mut tl, mut sl, mut bl) = (Vec::new(), Vec::new(), Vec::new());
             let mut t1 = None;
             for &r in &plan.rank_counts {
-                let (_, st) = timed(&job, m, &test_cam, &opts(m.mode, thr, r, curve), plan.reps)?;
+                let st = point(a, &plan, pof_file.as_deref(), r, curve, m.name)?;
                 let t1v = *t1.get_or_insert(st.frame_ms);
                 let speedup = t1v / st.frame_ms;
                 #[allow(clippy::cast_precision_loss)]
@@ -786,6 +823,10 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
             .as_ref()
             .map(|(n, r, s)| json!({"best": n, "ranks": r, "speedup": s}))),
     );
+
+    if pof_file.as_deref() == Some(scratch_pof.as_path()) {
+        let _ = std::fs::remove_file(&scratch_pof);
+    }
 
     // --- 5. Transfer-function family (Fig. 8) --------------------------------------------
     let bases = job.tf.bases.len();
@@ -1038,11 +1079,11 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     // --- The page -----------------------------------------------------------------------
     let b = job.grid.counts();
     let dims = job.volume.dims();
-    let mach = machine();
     let ok = conservative_violations == 0;
     html.raw(&format!(
         "<p>Volume <b>{}</b>: {}×{}×{} {} voxels, spacing {:?}; {} bricks of {}³ ({}×{}×{}), \
-         {} empty for the family's weights {:?}. Machine: {} cores ({}), {} worker threads. \
+         {} empty for the family's weights {:?}. Machine: {} cores ({}), {} worker threads, \
+         load average {} at the start. \
          Images {}×{}, orthographic, step {}, early termination {}, culling threshold {}. \
          Produced by <code>pofvr experiment</code>{} in {:.1} s.</p>",
         esc(&a.volume.volume),
@@ -1061,6 +1102,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         mach["cores"],
         esc(mach["cpu"].as_str().unwrap_or("")),
         mach["threads"],
+        mach["load_average_at_start"].as_str().unwrap_or("unknown"),
         width,
         height,
         plan.step,
@@ -1213,9 +1255,16 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
 
     html.h2("4. Speedup and load balance (paper Fig. 6)");
     html.p(&format!(
-        "Ranks {:?} as threads of one process on {} cores (ranks beyond the core count share \
-         them, so speedup flattens there); Hilbert and Z curves, without culling and with {}.",
-        plan.rank_counts, mach["cores"], primary.name
+        "Ranks {:?}; each point runs in a child process with one worker thread per rank \
+         (`--threads R`), as the paper's one processor per rank, on a machine with {} cores \
+         (load average {} when the run started), so rank counts above the core count share \
+         cores and speedup flattens there. Hilbert and Z curves, without culling and with {}. \
+         Median of {} frame(s) per point.",
+        plan.rank_counts,
+        mach["cores"],
+        mach["load_average_at_start"].as_str().unwrap_or("unknown"),
+        primary.name,
+        plan.reps
     ));
     if let Some((n, r, s)) = &best_speedup {
         html.p(&format!("Best speedup: {s:.2}× at {r} ranks ({n})."));
@@ -1341,6 +1390,160 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
             out.path("audit.csv").display()
         ));
     }
+    Ok(())
+}
+
+/// Statistics of a frame as `render --stats` and `--point` print them.
+#[derive(serde::Deserialize)]
+struct PointStats {
+    frame_ms: f64,
+    samples: u64,
+    rays: u64,
+    bricks: PointBricks,
+    ranks: Vec<pofvr::frame::RankStats>,
+}
+
+#[derive(serde::Deserialize)]
+struct PointBricks {
+    total: usize,
+    empty: usize,
+    non_empty: usize,
+    culled: usize,
+    visible: usize,
+}
+
+/// Runs one timed point in a child process with `--threads ranks`.
+fn point(
+    a: &ExperimentArgs,
+    plan: &Plan,
+    pof: Option<&std::path::Path>,
+    ranks: usize,
+    curve: Curve,
+    method: &str,
+) -> Result<FrameStats> {
+    let exe = std::env::current_exe().context("cannot find the pofvr executable")?;
+    let mut cmd = std::process::Command::new(exe);
+    let v = &a.volume;
+    cmd.arg(format!("--threads={ranks}"))
+        .arg("--quiet")
+        .arg("experiment")
+        .arg(&v.volume)
+        .arg(format!("--endian={}", v.endian))
+        .arg(format!("--header-bytes={}", v.header_bytes))
+        .arg(format!("--brick={}", v.brick))
+        .arg(format!("--size={}x{}", plan.width, plan.height))
+        .arg(format!("--view={},{}", plan.view[0], plan.view[1]))
+        .arg(format!("--cull-threshold={}", plan.cull_threshold))
+        .arg(format!("--reps={}", plan.reps))
+        .arg(format!("--point={ranks},{curve},{method}"));
+    for (flag, val) in [
+        ("dims", &v.dims),
+        ("dtype", &v.dtype),
+        ("spacing", &v.spacing),
+    ] {
+        if let Some(x) = val {
+            cmd.arg(format!("--{flag}={x}"));
+        }
+    }
+    if let Some(t) = &a.tf.tf {
+        cmd.arg("--tf").arg(t);
+    }
+    if let Some(w) = &a.tf.weights {
+        cmd.arg(format!("--weights={w}"));
+    }
+    if let Some(p) = pof {
+        cmd.arg("--pof").arg(p);
+    }
+    let o = cmd.output().context("running a timed point")?;
+    if !o.status.success() {
+        bail!(
+            "timed point ({ranks} ranks, {curve}, {method}) failed: {}",
+            String::from_utf8_lossy(&o.stderr).trim()
+        );
+    }
+    let p: PointStats = serde_json::from_slice(&o.stdout).context("timed point output")?;
+    #[allow(clippy::cast_precision_loss)]
+    let sps = if p.frame_ms > 0.0 {
+        p.samples as f64 / (p.frame_ms / 1e3)
+    } else {
+        0.0
+    };
+    Ok(FrameStats {
+        frame_ms: p.frame_ms,
+        rays: p.rays,
+        samples: p.samples,
+        samples_per_second: sps,
+        threads: ranks,
+        cull: None,
+        bricks: pofvr::frame::BrickCounts {
+            total: p.bricks.total,
+            empty: p.bricks.empty,
+            non_empty: p.bricks.non_empty,
+            culled: p.bricks.culled,
+            visible: p.bricks.visible,
+        },
+        ranks: p.ranks,
+        ..FrameStats::default()
+    })
+}
+
+/// The child side of [`point`]: median of `reps` frames, statistics on stdout.
+fn run_point(a: &ExperimentArgs, job: &RenderJob, plan: &Plan, spec: &str) -> Result<()> {
+    let parts: Vec<&str> = spec.split(',').collect();
+    let [ranks, curve, method] = parts[..] else {
+        bail!("--point: expected RANKS,CURVE,METHOD, got {spec:?}");
+    };
+    let ranks: usize = ranks
+        .parse()
+        .map_err(|_| anyhow!("--point: bad rank count {ranks:?}"))?;
+    let curve: Curve = curve.parse().map_err(|e| anyhow!("--point: {e}"))?;
+    let loaded;
+    #[allow(clippy::cast_precision_loss)]
+    let range = RangeBound::new(
+        &job.grid,
+        &job.sampled,
+        job.settings.step,
+        job.settings.ert,
+        job.grid.brick_size() as f32 / 2.0,
+    );
+    let (mode, bound): (CullMode, Option<&dyn OpacityBound>) = match method {
+        "none" => (CullMode::None, None),
+        "exact" => (CullMode::Exact, None),
+        "range-bound" => (CullMode::Pof, Some(&range)),
+        "pof-table" => {
+            let p = a
+                .pof
+                .as_ref()
+                .ok_or_else(|| anyhow!("--point pof-table needs --pof"))?;
+            loaded = PofTable::load(p, &job.volume, &job.grid, &job.tf)?;
+            (CullMode::Pof, Some(&loaded))
+        }
+        other => bail!("--point: unknown method {other:?}"),
+    };
+    let cam = Camera::orbit(
+        &job.volume,
+        plan.view[0],
+        plan.view[1],
+        plan.width,
+        plan.height,
+        Projection::Orthographic,
+    );
+    let m = Method {
+        name: "point",
+        mode,
+        bound,
+        missing: None,
+        conservative: true,
+        about: "",
+    };
+    let (_, st) = timed(
+        job,
+        &m,
+        &cam,
+        &opts(mode, plan.cull_threshold, ranks, curve),
+        plan.reps,
+    )?;
+    println!("{}", serde_json::to_string(&st)?);
     Ok(())
 }
 
