@@ -173,6 +173,9 @@ pub(crate) struct FrameArgs {
     /// renderer that culled frames are checked against).
     #[arg(long, conflicts_with = "cull")]
     pub(crate) whole: bool,
+    /// Precomputed POFs (`pofvr pof build`) for --cull pof and pof-set.
+    #[arg(long, value_name = "FILE.pof")]
+    pub(crate) pof: Option<PathBuf>,
     /// Ranks to render with, as threads of this process (the paper's parallel algorithm;
     /// the frame is identical for any count).
     /// > default: 1

@@ -8,8 +8,8 @@
 //! holding it, so it can never see weights changed under it. When `render_frame` takes the
 //! weights per call, [`SharedJob::render`] becomes a plain call and the lock goes away.
 //!
-//! The library has no POF file reader yet, so [`load_pofs`] refuses `--pof`; modes `pof`
-//! and `pof-set` need a [`Pofs`], which tests build from the library's range bound.
+//! Modes `pof` and `pof-set` need a [`Pofs`]: a POF file ([`load_pofs`]) or, in tests, the
+//! library's range bound.
 
 use std::path::Path;
 use std::sync::{PoisonError, RwLock, RwLockReadGuard};
@@ -31,16 +31,15 @@ pub const CULL_MODES: [CullMode; 4] = [
 /// Per-brick opacity bounds that the POF cull modes read.
 pub type Pofs = Box<dyn OpacityBound + Send>;
 
-/// Opens a POF file for `job`.
+/// Opens a POF file for `job`, checked against its volume, bases, step and early
+/// termination.
 ///
 /// # Errors
-/// Always, for now: the library cannot read POF files yet. The message says which modes
-/// work without them.
-pub fn load_pofs(path: &Path, _job: &RenderJob) -> Result<Pofs, String> {
-    Err(format!(
-        "--pof {}: this build cannot read POF files yet; serve without --pof for cull modes none and exact",
-        path.display()
-    ))
+/// A message naming the file and what does not match.
+pub fn load_pofs(path: &Path, job: &RenderJob) -> Result<Pofs, String> {
+    job.load_pofs(path)
+        .map(|t| Box::new(t) as Pofs)
+        .map_err(|e| e.to_string())
 }
 
 /// What changes per frame besides the camera and the options: the look of the volume.
@@ -165,6 +164,7 @@ mod tests {
             ..FrameOptions::default()
         };
         assert!(shared.render(None, &cam, &opts, &look).is_err());
-        assert!(load_pofs(Path::new("x.pof"), &shared.read()).is_err());
+        let e = load_pofs(Path::new("missing.pof"), &shared.read()).unwrap_err();
+        assert!(e.contains("missing.pof"), "{e}");
     }
 }

@@ -10,6 +10,7 @@ use crate::comm::{CommError, Communicator, LocalCommunicator, Rank};
 use crate::composite::{CompositeError, Compositor, DirectSend, TileFragment, TileLayout};
 use crate::cull::{CullMode, Culler, FrameBricks, OpacityBound};
 use crate::distribute::{BrickAssignment, Curve, DistributeError};
+use crate::pof::{PofError, PofTable};
 use crate::render::{
     Camera, Image, RayCaster, RayStats, RenderSettings, SampledTf, TfError, TransferFunction,
 };
@@ -77,6 +78,34 @@ impl RenderJob {
             sampled,
             settings,
         })
+    }
+
+    /// Loads precomputed POFs for this job: the file must match the volume, the bases (the
+    /// weights are free) and the ray caster's step and early-termination threshold, since a
+    /// POF bounds what the ray caster composites with those.
+    ///
+    /// # Errors
+    /// [`PofError`] naming the file and what differs.
+    pub fn load_pofs(&self, path: &std::path::Path) -> Result<PofTable, PofError> {
+        let table = PofTable::load(path, &self.volume, &self.grid, &self.tf)?;
+        let file = path.display().to_string();
+        if table.step() != self.settings.step {
+            return Err(PofError::Mismatch {
+                file,
+                what: "sample step (--step)",
+                in_file: table.step().to_string(),
+                expected: self.settings.step.to_string(),
+            });
+        }
+        if table.ert() != self.settings.ert {
+            return Err(PofError::Mismatch {
+                file,
+                what: "early-termination threshold (--ert)",
+                in_file: table.ert().to_string(),
+                expected: self.settings.ert.to_string(),
+            });
+        }
+        Ok(table)
     }
 
     /// Number of bricks that are empty for the current weights.

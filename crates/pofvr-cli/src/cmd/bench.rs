@@ -207,10 +207,28 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         h,
         Projection::Orthographic,
     );
-    let bounds: Option<&dyn OpacityBound> = None;
-    if a.pof.is_some() {
-        anyhow::bail!("--pof: this build has no POF support yet");
-    }
+    let pofs = match &a.pof {
+        Some(p) => job.load_pofs(p)?,
+        None => {
+            let settings = pofvr::pof::PofSettings {
+                sets: true,
+                step: job.settings.step,
+                ert: job.settings.ert,
+                ..Default::default()
+            };
+            crate::cmd::pof::build_table(
+                &job.volume,
+                &job.grid,
+                &job.tf,
+                &settings,
+                None,
+                ui,
+                "building POFs (with sets)",
+            )?
+            .table
+        }
+    };
+    let bounds: Option<&dyn OpacityBound> = Some(&pofs);
     let plan: Vec<(CullMode, usize)> = vec![
         (CullMode::None, 1),
         (CullMode::Pof, 1),

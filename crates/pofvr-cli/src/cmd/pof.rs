@@ -162,13 +162,26 @@ pub(crate) fn run(cmd: &PofCommand, ui: &Ui) -> Result<()> {
     }
 }
 
-struct Built {
-    table: PofTable,
+pub(crate) struct Built {
+    pub(crate) table: PofTable,
     seconds: f64,
+    /// CPU seconds of the process during the build, where the OS tells them.
+    cpu_seconds: Option<f64>,
     computed_bricks: u64,
 }
 
-fn build_table(
+/// User + system CPU seconds of this process (Linux `/proc/self/stat`, in USER_HZ = 100
+/// ticks): on a shared machine wall time × threads overstates the cores actually had.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+pub(crate) fn build_table(
     vol: &Volume,
     grid: &BrickGrid,
     tf: &TransferFunction,
@@ -181,6 +194,7 @@ fn build_table(
     let bar = ui.bar(0, label);
     let total = AtomicU64::new(0);
     let start = Instant::now();
+    let cpu0 = cpu_seconds();
     let table =
         PofTable::build_resumable(vol, grid, tf, &sampled, settings, partial, &|done, n| {
             total.store(n, Ordering::Relaxed);
@@ -191,14 +205,21 @@ fn build_table(
     Ok(Built {
         table,
         seconds: start.elapsed().as_secs_f64(),
+        cpu_seconds: cpu_seconds().zip(cpu0).map(|(b, a)| b - a),
         computed_bricks: total.load(Ordering::Relaxed),
     })
 }
 
+/// Brick-views per core-second: per CPU second used when known, else per wall second and
+/// worker thread.
 #[allow(clippy::cast_precision_loss)]
 fn rate(b: &Built, settings: &PofSettings) -> f64 {
     let views = (settings.views[0] * settings.views[1]) as f64;
-    b.computed_bricks as f64 * views / b.seconds.max(1e-9) / rayon::current_num_threads() as f64
+    let core_seconds = b
+        .cpu_seconds
+        .filter(|c| *c > 0.0)
+        .unwrap_or(b.seconds * rayon::current_num_threads() as f64);
+    b.computed_bricks as f64 * views / core_seconds.max(1e-9)
 }
 
 fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
@@ -503,6 +524,7 @@ struct VolumeReport {
     stored_bricks: usize,
     views: [usize; 2],
     seconds: f64,
+    cpu_seconds: Option<f64>,
     threads: usize,
     brick_views_per_core_second: f64,
     mean_pof: f64,
@@ -580,6 +602,7 @@ pub(crate) fn bench(a: &BenchPofArgs, ui: &Ui) -> Result<()> {
             stored_bricks: t.stored_bricks(),
             views: settings.views,
             seconds: built.seconds,
+            cpu_seconds: built.cpu_seconds,
             threads: rayon::current_num_threads(),
             brick_views_per_core_second: rate(&built, &settings),
             mean_pof: sum / count.max(1) as f64,

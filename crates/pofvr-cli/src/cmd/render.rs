@@ -20,12 +20,21 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
     let (image, stats) = if a.frame.whole {
         render_reference(&job, &cam)
     } else {
-        let cull: CullMode = match &a.frame.cull {
-            Some(c) => c
+        let cull: CullMode = match (&a.frame.cull, &a.frame.pof) {
+            (Some(c), _) => c
                 .parse()
                 .map_err(|e: String| anyhow::anyhow!("--cull: {e}"))?,
-            None => CullMode::None,
+            (None, Some(_)) => CullMode::Pof,
+            (None, None) => CullMode::None,
         };
+        let pofs = match &a.frame.pof {
+            Some(p) => Some(job.load_pofs(p)?),
+            None => None,
+        };
+        if cull == CullMode::PofSet && !pofs.as_ref().is_some_and(pofvr::pof::PofTable::has_sets) {
+            anyhow::bail!("--cull pof-set needs a POF file built with --sets");
+        }
+        let bounds = pofs.as_ref().map(|t| t as &dyn pofvr::cull::OpacityBound);
         let opts = FrameOptions {
             cull,
             cull_threshold: a.frame.cull_threshold,
@@ -36,7 +45,7 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
                 .parse()
                 .map_err(|e| anyhow::anyhow!("--curve: {e}"))?,
         };
-        render_frame(&job, None, &cam, &opts)?
+        render_frame(&job, bounds, &cam, &opts)?
     };
     sp.finish_and_clear();
     image.write_png(&a.out)?;

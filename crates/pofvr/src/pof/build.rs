@@ -525,12 +525,12 @@ impl Ctx<'_> {
         }
         if self.sets {
             let mut k = p;
-            for s in 0..p {
+            for (s, sums_at_s) in at_best.iter().enumerate() {
                 for j in 0..p {
                     if j == s {
                         continue;
                     }
-                    out[k] = at_best[s].get(j).copied().unwrap_or(0.0).max(out[j]);
+                    out[k] = sums_at_s.get(j).copied().unwrap_or(0.0).max(out[j]);
                     k += 1;
                 }
             }

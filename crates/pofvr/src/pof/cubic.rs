@@ -107,8 +107,9 @@ fn solve(mut a: [[f64; COEFFS]; COEFFS], mut b: [f64; COEFFS]) -> Option<[f64; C
         b.swap(col, piv);
         for r in col + 1..COEFFS {
             let f = a[r][col] / a[col][col];
-            for c in col..COEFFS {
-                a[r][c] -= f * a[col][c];
+            let pivot_row = a[col];
+            for (x, y) in a[r][col..].iter_mut().zip(&pivot_row[col..]) {
+                *x -= f * y;
             }
             b[r] -= f * b[col];
         }

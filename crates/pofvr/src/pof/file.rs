@@ -187,12 +187,8 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
         )));
     }
     if index_len != meta.brick_count as usize * 4
-        || index_offset
-            .checked_add(index_len)
-            .map_or(true, |e| e > b.len())
-        || data_offset
-            .checked_add(data_len)
-            .map_or(true, |e| e != b.len())
+        || !matches!(index_offset.checked_add(index_len), Some(e) if e <= b.len())
+        || !matches!(data_offset.checked_add(data_len), Some(e) if e == b.len())
         || (record_len > 0 && data_len % record_len != 0)
     {
         return Err(fmt(format!(
@@ -219,11 +215,7 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
             got,
         });
     }
-    let slots = if record_len == 0 {
-        0
-    } else {
-        data_len / record_len
-    };
+    let slots = data_len.checked_div(record_len).unwrap_or(0);
     for i in 0..meta.brick_count as usize {
         let s = u32_at(index_offset + 4 * i);
         if s != u32::MAX && s as usize >= slots {
