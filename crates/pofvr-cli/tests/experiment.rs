@@ -50,12 +50,15 @@ fn num(row: &HashMap<String, String>, col: &str) -> f64 {
         .unwrap_or_else(|_| panic!("{col} = {:?} is not a number", row[col]))
 }
 
-/// `pofvr render --stats` for one view, mode and weights.
+/// `pofvr render --stats` for one view, mode and weights (POF modes read `head.pof`).
 fn render_stats(dir: &Path, view: &str, cull: &str, weights: Option<&str>) -> serde_json::Value {
     let mut args = vec![
         "render", VOLUME, "--view", view, "--size", SIZE, "--cull", cull, "--out", "r.png",
         "--stats", "r.json",
     ];
+    if cull.starts_with("pof") {
+        args.extend(["--pof", "head.pof"]);
+    }
     if let Some(w) = weights {
         args.extend(["--weights", w]);
     }
@@ -175,11 +178,17 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
         assert_eq!(az, (0..18).map(|i| f64::from(i) * 20.0).collect::<Vec<_>>());
     }
     let mut culled_somewhere = false;
-    for (az, mode) in [(20.0, "none"), (20.0, "exact"), (140.0, "exact")] {
+    for (az, method) in [
+        (20.0, "none"),
+        (20.0, "exact"),
+        (140.0, "exact"),
+        (60.0, "pof-table"),
+    ] {
         let row = fig4
             .iter()
-            .find(|r| r["method"] == mode && num(r, "azimuth_deg") == az)
+            .find(|r| r["method"] == method && num(r, "azimuth_deg") == az)
             .unwrap();
+        let mode = method.strip_suffix("-table").unwrap_or(method);
         let st = render_stats(dir.path(), &format!("{az},0"), mode, None);
         for (col, key) in [
             ("visible", "visible"),

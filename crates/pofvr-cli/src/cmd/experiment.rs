@@ -306,7 +306,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     let table = match &a.pof {
         Some(p) if p.exists() => {
             let sp = ui.spinner(&format!("reading {}", p.display()));
-            let t = PofTable::load(p, &job.volume, &job.grid, &job.tf)?;
+            let t = job.load_pofs(p)?;
             sp.finish_and_clear();
             if t.meta().encoding != Encoding::Table {
                 bail!(
@@ -1515,7 +1515,7 @@ fn run_point(a: &ExperimentArgs, job: &RenderJob, plan: &Plan, spec: &str) -> Re
                 .pof
                 .as_ref()
                 .ok_or_else(|| anyhow!("--point pof-table needs --pof"))?;
-            loaded = PofTable::load(p, &job.volume, &job.grid, &job.tf)?;
+            loaded = job.load_pofs(p)?;
             (CullMode::Pof, Some(&loaded))
         }
         other => bail!("--point: unknown method {other:?}"),
