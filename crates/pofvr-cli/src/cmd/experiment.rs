@@ -22,7 +22,7 @@ use serde_json::json;
 
 use crate::args::{TfArgs, VolumeArgs};
 use crate::progress::Ui;
-use crate::report::plot::{line_chart, stacked_bars, Line, Stack};
+use crate::report::plot::{line_chart, stacked_bars, Legend, Line, Stack};
 use crate::report::{esc, Cell, Csv, Html, ReportDir};
 use crate::resolve;
 
@@ -568,6 +568,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
             "visible bricks",
             &fig4_lines,
             true,
+            Legend::LowerLeft,
         )?
         .as_bytes(),
     )?;
@@ -792,6 +793,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
             "frame time (ms)",
             &time_lines,
             true,
+            Legend::LowerLeft,
         )?
         .as_bytes(),
     )?;
@@ -803,6 +805,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
             "speedup",
             &speed_lines,
             true,
+            Legend::UpperLeft,
         )?
         .as_bytes(),
     )?;
@@ -814,6 +817,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
             "max / mean samples",
             &balance_lines,
             false,
+            Legend::UpperLeft,
         )?
         .as_bytes(),
     )?;

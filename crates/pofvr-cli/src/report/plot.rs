@@ -71,6 +71,34 @@ fn span(values: impl Iterator<Item = f64>, from_zero: bool) -> (f64, f64) {
     }
 }
 
+/// Where a chart's legend goes.
+#[derive(Clone, Copy)]
+pub(crate) enum Legend {
+    UpperLeft,
+    UpperRight,
+    LowerLeft,
+}
+
+impl Legend {
+    fn pos(self) -> SeriesLabelPosition {
+        match self {
+            Legend::UpperLeft => SeriesLabelPosition::UpperLeft,
+            Legend::UpperRight => SeriesLabelPosition::UpperRight,
+            Legend::LowerLeft => SeriesLabelPosition::LowerLeft,
+        }
+    }
+}
+
+/// Axis numbers without a trailing `.0`, and without float noise.
+fn tick(v: &f64) -> String {
+    if (v - v.round()).abs() < 1e-9 {
+        format!("{}", v.round())
+    } else {
+        let s = format!("{v:.3}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    }
+}
+
 /// A line chart with markers and a legend; the y axis starts at 0 when `y_from_zero`.
 pub(crate) fn line_chart(
     title: &str,
@@ -78,6 +106,7 @@ pub(crate) fn line_chart(
     y_label: &str,
     lines: &[Line],
     y_from_zero: bool,
+    legend: Legend,
 ) -> Result<String> {
     font()?;
     let mut svg = String::new();
@@ -103,6 +132,8 @@ pub(crate) fn line_chart(
             .configure_mesh()
             .x_desc(x_label)
             .y_desc(y_label)
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .label_style(("sans-serif", 13))
             .axis_desc_style(("sans-serif", 15))
             .draw()
@@ -132,7 +163,7 @@ pub(crate) fn line_chart(
             .label_font(("sans-serif", 13))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend.pos())
             .draw()
             .map_err(err)?;
         root.present().map_err(err)?;
@@ -176,7 +207,8 @@ pub(crate) fn stacked_bars(
             .margin(14)
             .x_label_area_size(44)
             .y_label_area_size(70)
-            .build_cartesian_2d((0..n_i).into_segmented(), 0.0..ymax)
+            // n − 1 as the last value gives exactly n segments.
+            .build_cartesian_2d((0..n_i - 1).into_segmented(), 0.0..ymax)
             .map_err(err)?;
         let names = categories.to_vec();
         let fmt = move |v: &SegmentValue<i32>| match v {
@@ -193,6 +225,7 @@ pub(crate) fn stacked_bars(
             .x_label_formatter(&fmt)
             .x_desc(x_label)
             .y_desc(y_label)
+            .y_label_formatter(&tick)
             .label_style(("sans-serif", 12))
             .axis_desc_style(("sans-serif", 15))
             .draw()
@@ -234,4 +267,92 @@ pub(crate) fn stacked_bars(
         root.present().map_err(err)?;
     }
     Ok(svg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn texts(svg: &str) -> Vec<String> {
+        let doc = roxmltree::Document::parse(svg).expect("SVG is XML");
+        doc.descendants()
+            .filter(|n| n.has_tag_name("text"))
+            .filter_map(|n| n.text().map(|t| t.trim().to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn line_chart_has_title_axes_and_legend() {
+        let svg = line_chart(
+            "T",
+            "xs",
+            "ys",
+            &[
+                Line {
+                    name: "a".into(),
+                    points: vec![(0.0, 1.0), (20.0, 3.0)],
+                    dashed: false,
+                },
+                Line {
+                    name: "ideal".into(),
+                    points: vec![(0.0, 0.0), (20.0, 20.0)],
+                    dashed: true,
+                },
+            ],
+            true,
+            Legend::UpperLeft,
+        )
+        .unwrap();
+        let t = texts(&svg);
+        for want in ["T", "xs", "ys", "a", "ideal", "20"] {
+            assert!(t.iter().any(|x| x == want), "{want} missing from {t:?}");
+        }
+        assert!(!t.iter().any(|x| x.ends_with(".0")), "{t:?}");
+    }
+
+    #[test]
+    fn stacked_bars_label_every_category_even_one() {
+        for n in [1usize, 5] {
+            let cats: Vec<String> = (0..n).map(|i| format!("c{i}")).collect();
+            let svg = stacked_bars(
+                "B",
+                &cats,
+                "cat",
+                "val",
+                &[
+                    Stack {
+                        name: "low".into(),
+                        values: vec![1.0; n],
+                    },
+                    Stack {
+                        name: "high".into(),
+                        values: vec![2.0; n],
+                    },
+                ],
+            )
+            .unwrap();
+            let t = texts(&svg);
+            for c in &cats {
+                assert!(t.contains(c), "{c} missing from {t:?}");
+            }
+            // 2 stacks × n bars plus 2 legend swatches.
+            let doc = roxmltree::Document::parse(&svg).unwrap();
+            let filled = doc
+                .descendants()
+                .filter(|e| e.has_tag_name("rect"))
+                .filter(|e| {
+                    e.attribute("fill")
+                        .is_some_and(|f| f != "#FFFFFF" && f != "none")
+                })
+                .count();
+            assert!(filled >= 2 * n + 2, "{filled} bars for n = {n}");
+        }
+    }
+
+    #[test]
+    fn tick_labels_are_plain() {
+        assert_eq!(tick(&50.0), "50");
+        assert_eq!(tick(&0.25), "0.25");
+        assert_eq!(tick(&(0.1 + 0.2)), "0.3");
+    }
 }
