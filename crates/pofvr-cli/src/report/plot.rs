@@ -75,7 +75,6 @@ fn span(values: impl Iterator<Item = f64>, from_zero: bool) -> (f64, f64) {
 #[derive(Clone, Copy)]
 pub(crate) enum Legend {
     UpperLeft,
-    UpperRight,
     LowerLeft,
 }
 
@@ -83,7 +82,6 @@ impl Legend {
     fn pos(self) -> SeriesLabelPosition {
         match self {
             Legend::UpperLeft => SeriesLabelPosition::UpperLeft,
-            Legend::UpperRight => SeriesLabelPosition::UpperRight,
             Legend::LowerLeft => SeriesLabelPosition::LowerLeft,
         }
     }
