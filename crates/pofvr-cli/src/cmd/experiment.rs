@@ -967,7 +967,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         img.write_png(&out.path(&file))?;
         out.record(&file);
         fig8_images.push(json!({
-            "file": file, "k0": k0, "k1": if bases >= 2 { Some(k1) } else { None },
+            "file": file, "k0": shortest(k0), "k1": (bases >= 2).then(|| shortest(k1)),
             "method": primary.name, "visible": st.bricks.visible, "culled": st.bricks.culled,
             "non_empty": st.bricks.non_empty,
         }));
@@ -1352,7 +1352,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         "data_type": job.volume.data_type().to_string(),
         "spacing": job.volume.spacing(),
         "bricks": { "size": a.volume.brick, "counts": b, "total": job.grid.len(), "empty": job.empty_bricks() },
-        "weights": base_weights,
+        "weights": base_weights.iter().map(|w| shortest(*w)).collect::<Vec<_>>(),
         "bases": names,
         "machine": mach,
         "plan": plan,
@@ -1551,6 +1551,11 @@ fn run_point(a: &ExperimentArgs, job: &RenderJob, plan: &Plan, spec: &str) -> Re
     Ok(())
 }
 
+/// An f32 as the f64 with the same shortest decimal form (0.05, not 0.0500000007).
+fn shortest(x: f32) -> f64 {
+    format!("{x}").parse().unwrap_or(f64::from(x))
+}
+
 /// One POF build (or read) of figure 1.
 #[derive(Serialize)]
 struct PofBuildRow {
@@ -1735,6 +1740,13 @@ mod tests {
         assert_eq!(s.pixel(1, 1), [1.0, 0.0, 0.0, 1.0]);
         assert_eq!(s.pixel(5, 0), [0.0, 1.0, 0.0, 1.0]);
         assert_eq!(s.pixel(2, 0), [0.0; 4]);
+    }
+
+    #[test]
+    fn weights_print_as_written() {
+        assert_eq!(shortest(0.05), 0.05);
+        assert_eq!(shortest(0.9), 0.9);
+        assert_eq!(shortest(1.0), 1.0);
     }
 
     #[test]
