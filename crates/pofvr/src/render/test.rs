@@ -4,7 +4,11 @@ use super::*;
 use crate::brick::BrickGrid;
 use crate::render::families;
 use crate::volume::phantom::Phantom;
-use crate::volume::{Volume, VoxelData, Voxels};
+use crate::volume::{Volume, Voxel, VoxelData, Voxels};
+use crate::with_voxels;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use ray_caster::Trilinear;
 
 fn constant_tf(alpha: f32) -> TransferFunction {
     TransferFunction::from_json(
@@ -236,5 +240,144 @@ fn early_termination_stops_at_the_threshold() {
         } else {
             assert!(b[3] >= 0.9 && a[3] - b[3] <= 0.1 + 1e-6);
         }
+    }
+}
+
+/// The scalar sample loop as it was before the SIMD paths (unshaded): the definition every
+/// path of `RayCaster::march` must reproduce bit for bit.
+#[allow(clippy::cast_precision_loss)]
+fn march_reference<T: Voxel>(
+    tri: &Trilinear<'_, T>,
+    cls: &Classifier,
+    settings: RenderSettings,
+    ray: &IndexRay,
+    (k0, k1): (i32, i32),
+    acc: &mut [f32; 4],
+) -> u64 {
+    let mut n = 0u64;
+    for k in k0..k1 {
+        if acc[3] >= settings.ert {
+            break;
+        }
+        let t = k as f32 * settings.step;
+        let p = [
+            ray.o[0] + t * ray.d[0],
+            ray.o[1] + t * ray.d[1],
+            ray.o[2] + t * ray.d[2],
+        ];
+        let s = cls.sample(tri.sample(p));
+        n += 1;
+        if s[3] == 0.0 {
+            continue;
+        }
+        let w = 1.0 - acc[3];
+        acc[0] += w * s[0];
+        acc[1] += w * s[1];
+        acc[2] += w * s[2];
+        acc[3] += w * s[3];
+    }
+    n
+}
+
+fn random_volume(rng: &mut StdRng, dtype: usize) -> Volume {
+    let dims: [usize; 3] = std::array::from_fn(|_| {
+        if rng.gen_bool(0.1) {
+            1
+        } else {
+            rng.gen_range(2..=13)
+        }
+    });
+    let spacing: [f32; 3] = std::array::from_fn(|_| rng.gen_range(0.4..2.0));
+    let n = dims.iter().product();
+    let data = match dtype {
+        0 => VoxelData::U8(Voxels::owned((0..n).map(|_| rng.gen()).collect())),
+        1 => VoxelData::U16(Voxels::owned((0..n).map(|_| rng.gen()).collect())),
+        2 => VoxelData::I16(Voxels::owned((0..n).map(|_| rng.gen()).collect())),
+        _ => VoxelData::F32(Voxels::owned(
+            (0..n).map(|_| rng.gen_range(-1000.0..1000.0)).collect(),
+        )),
+    };
+    Volume::new(dims, spacing, data, "random").unwrap()
+}
+
+#[test]
+fn fast_march_equals_scalar_reference_bit_for_bit() {
+    let mut rng = StdRng::seed_from_u64(0x5eed);
+    for case in 0..48 {
+        let vol = random_volume(&mut rng, case % 4);
+        let (min, max) = with_voxels!(vol.data(), v => v.iter().fold(
+            (f32::INFINITY, f32::NEG_INFINITY),
+            |(a, b), x| (a.min(x.to_f32()), b.max(x.to_f32()))
+        ));
+        let r = max - min;
+        // Zero-opacity stretches exercise the skipped composite.
+        let tf = TransferFunction::from_json(
+            &format!(
+                r#"{{"bases":[{{"name":"a","opacity":[[{},0],[{},0],[{},0.4],[{},0.1]]}}],
+                    "color":[[{},1,0.5,0.2],[{},0.1,0.9,1]]}}"#,
+                min,
+                min + 0.3 * r,
+                min + 0.5 * r,
+                max,
+                min,
+                max
+            ),
+            "t",
+        )
+        .unwrap();
+        let s = SampledTf::new(&tf, crate::brick::ValueRange { min, max });
+        let settings = RenderSettings {
+            step: [0.3, 0.7, 1.0, 1.6][rng.gen_range(0..4)],
+            ert: [0.5, 0.95, 2.0][rng.gen_range(0..3)],
+            shade: false,
+        };
+        let cls = s.classify(&[rng.gen_range(0.5..3.0)], settings.step);
+        let caster = RayCaster::new(&vol, &cls, settings);
+        let vbox = caster.volume_box();
+        let dims = vol.dims();
+        with_voxels!(vol.data(), v => {
+            let tri = Trilinear::new(v, dims);
+            for _ in 0..200 {
+                #[allow(clippy::cast_precision_loss)]
+                let ray = if rng.gen_bool(0.5) {
+                    // A world ray through the anisotropic spacing.
+                    let o = DVec3::from(std::array::from_fn::<f64, 3, _>(|a| {
+                        rng.gen_range(-4.0..(dims[a] as f64 + 4.0)) * f64::from(vol.spacing()[a])
+                    }));
+                    let mut dir = DVec3::from(std::array::from_fn::<f64, 3, _>(|_| {
+                        if rng.gen_bool(0.15) { 0.0 } else { rng.gen_range(-1.0..1.0) }
+                    }));
+                    if dir.length() < 1e-3 {
+                        dir = DVec3::X;
+                    }
+                    IndexRay::new(&Ray { origin: o, dir: dir.normalize() }, vol.spacing(), vol.unit())
+                } else {
+                    IndexRay {
+                        o: std::array::from_fn(|a| rng.gen_range(-3.0..(dims[a] as f32 + 3.0))),
+                        d: std::array::from_fn(|_| rng.gen_range(-1.5..1.5)),
+                        dir: [0.0, 0.0, 1.0],
+                    }
+                };
+                // The volume's own sample range, or any range (positions outside get clamped).
+                let range = match ray.span(&vbox) {
+                    Some(span) if rng.gen_bool(0.7) => ray_caster::sample_range(span, settings.step),
+                    _ => {
+                        let k0 = rng.gen_range(0..40);
+                        (k0, k0 + rng.gen_range(0..60))
+                    }
+                };
+                let start = if rng.gen_bool(0.5) { [0.0; 4] } else { [0.1, 0.05, 0.2, 0.3] };
+                let (mut fast, mut slow) = (start, start);
+                let nf = caster.march(&tri, &ray, range, &mut fast);
+                let ns = march_reference(&tri, &cls, settings, &ray, range, &mut slow);
+                assert_eq!(nf, ns, "case {case}: {ray:?} {range:?}");
+                assert_eq!(
+                    fast.map(f32::to_bits),
+                    slow.map(f32::to_bits),
+                    "case {case} ({:?}): {ray:?} {range:?}",
+                    vol.data().data_type()
+                );
+            }
+        });
     }
 }

@@ -393,16 +393,46 @@ impl Classifier {
     /// Premultiplied RGBA of one step at value `v`.
     #[inline(always)]
     #[must_use]
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     pub fn sample(&self, v: f32) -> [f32; 4] {
+        self.view().sample(v)
+    }
+
+    /// The lookup by value, copied out for a sample loop to keep in registers.
+    #[inline(always)]
+    pub(crate) fn view(&self) -> ClassifierView<'_> {
+        debug_assert_eq!(self.rgba.len(), TF_BINS);
+        ClassifierView {
+            lo: self.lo,
+            scale: self.scale,
+            rgba: &self.rgba,
+        }
+    }
+}
+
+/// A [`Classifier`]'s lookup: the one definition of [`Classifier::sample`].
+#[derive(Clone, Copy)]
+pub(crate) struct ClassifierView<'c> {
+    lo: f32,
+    scale: f32,
+    /// Always TF_BINS entries.
+    rgba: &'c [[f32; 4]],
+}
+
+impl ClassifierView<'_> {
+    /// Premultiplied RGBA of one step at value `v`.
+    #[inline(always)]
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    pub(crate) fn sample(self, v: f32) -> [f32; 4] {
         // Not clamp: `max` turns a NaN into 0, which keeps the unchecked cast sound.
         #[allow(clippy::manual_clamp)]
         let x = ((v - self.lo) * self.scale).max(0.0).min(BIN_MAX);
-        // SAFETY: x is in [0, TF_BINS-1]; `max` maps NaN to 0.
-        let b = unsafe { x.to_int_unchecked::<u32>() } as usize;
+        // SAFETY: x is in [0, TF_BINS-1]; `max` maps NaN to 0. (Through i32, whose
+        // conversion zero-extends for free, unlike u32's.)
+        let b = unsafe { x.to_int_unchecked::<i32>() } as u32 as usize;
         debug_assert_eq!(self.rgba.len(), TF_BINS);
-        // SAFETY: `rgba` always holds TF_BINS entries (built by `SampledTf::classify`) and
-        // `b` is clamped below TF_BINS.
+        // SAFETY: `rgba` always holds TF_BINS entries (built by `SampledTf::classify`, the
+        // only maker of a `Classifier`, whose `view` is the only maker of this) and `b` is
+        // clamped below TF_BINS.
         *unsafe { self.rgba.get_unchecked(b) }
     }
 }
