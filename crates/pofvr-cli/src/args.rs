@@ -30,6 +30,8 @@ pub(crate) enum Command {
     Demo(DemoArgs),
     /// Serve the interactive viewer on http://127.0.0.1:8080/.
     Serve(crate::cmd::serve::ServeArgs),
+    /// Reproduce the paper's experiments on a volume: a report with plots (index.html).
+    Experiment(Box<crate::cmd::experiment::ExperimentArgs>),
     /// Measure performance and write a report.
     #[command(subcommand)]
     Bench(BenchCommand),

@@ -3,6 +3,7 @@
 mod args;
 mod cmd;
 mod progress;
+mod report;
 mod resolve;
 
 use clap::Parser;
@@ -34,6 +35,7 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Render(a) => cmd::render::run(&a, &ui),
         args::Command::Demo(a) => cmd::demo::run(&a, &ui),
         args::Command::Serve(a) => cmd::serve::run(&a, &ui),
+        args::Command::Experiment(a) => cmd::experiment::run(&a, &ui),
         args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
         args::Command::Bench(args::BenchCommand::Cull(a)) => cmd::bench::cull(&a, &ui),
         args::Command::Bench(args::BenchCommand::Pof(a)) => cmd::pof::bench(&a, &ui),

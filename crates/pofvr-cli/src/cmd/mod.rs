@@ -1,5 +1,6 @@
 pub(crate) mod bench;
 pub(crate) mod demo;
+pub(crate) mod experiment;
 pub(crate) mod info;
 #[cfg(feature = "mpi")]
 pub(crate) mod mpi_frame;
