@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use pofvr::cull::range_bound::RangeBound;
 use pofvr::cull::{CullMode, OpacityBound};
 use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
+use pofvr::pof::{PofSettings, PofTable};
 use pofvr::render::{Camera, Image, Projection, RenderSettings, TransferFunction};
 use pofvr::volume::Volume;
 
@@ -105,6 +106,72 @@ fn culling_is_conservative_on_every_real_volume() {
                     culled[2] >= culled[1],
                     "{vol}: exact culls at least as many as the bound: {culled:?}"
                 );
+            }
+        }
+    }
+}
+
+/// Real POFs, built here with a coarse view grid (the guarantee does not depend on the grid
+/// size, and 36×36 would make the test slow), in every mode, for several weight vectors —
+/// which the tables serve without a rebuild.
+#[test]
+fn pof_culling_is_conservative_on_every_real_volume() {
+    let Some(data) = data_dir() else { return };
+    for (vol, tf) in CASES {
+        let volume = Volume::open(&data.join(vol), None).unwrap();
+        let tf = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
+        let mut job = RenderJob::new(volume, tf, 16, RenderSettings::default()).unwrap();
+        let big = job.grid.len() > 2000;
+        let settings = PofSettings {
+            views: if big { [8, 8] } else { [12, 12] },
+            sets: true,
+            step: job.settings.step,
+            ert: job.settings.ert,
+            ..PofSettings::default()
+        };
+        let table = PofTable::build(
+            &job.volume,
+            &job.grid,
+            &job.tf,
+            &job.sampled,
+            &settings,
+            &|_, _| {},
+        )
+        .unwrap();
+        let bounds: Option<&dyn OpacityBound> = Some(&table);
+        for weights in [[1.0, 1.0], [2.5, 0.5], [0.5, 3.0]] {
+            job.tf.set_weights(weights.to_vec()).unwrap();
+            let views: &[(f64, f64, Projection)] = if big {
+                &[
+                    (37.0, 23.0, Projection::Orthographic),
+                    (-110.0, -30.0, Projection::Perspective),
+                ]
+            } else {
+                &[
+                    (0.0, 0.0, Projection::Orthographic),
+                    (37.0, 23.0, Projection::Orthographic),
+                    (200.0, 60.0, Projection::Orthographic),
+                    (-110.0, -30.0, Projection::Perspective),
+                ]
+            };
+            for &(az, el, p) in views {
+                let cam = Camera::orbit(&job.volume, az, el, 96, 80, p);
+                let (reference, _) = render_reference(&job, &cam);
+                let mut culled = Vec::new();
+                for mode in [CullMode::Pof, CullMode::PofSet, CullMode::Exact] {
+                    let opts = FrameOptions {
+                        cull: mode,
+                        ranks: 3,
+                        ..FrameOptions::default()
+                    };
+                    let (img, st) = render_frame(&job, bounds, &cam, &opts).unwrap();
+                    let what = format!("{vol} {mode:?} {weights:?} {az},{el} {p:?}");
+                    assert_conservative(&reference, &img, 0.95, &what);
+                    culled.push(st.bricks.culled);
+                }
+                eprintln!("{vol} {weights:?} {az},{el}: culled pof/pof-set/exact {culled:?}");
+                assert!(culled[1] >= culled[0], "{vol}: pof-set < pof: {culled:?}");
+                assert!(culled[2] >= culled[0], "{vol}: exact < pof: {culled:?}");
             }
         }
     }
