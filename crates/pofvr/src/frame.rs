@@ -31,6 +31,23 @@ pub struct RenderJob {
     pub settings: RenderSettings,
 }
 
+/// Validated before the volume is scanned, so a bad flag fails fast.
+fn check_settings(settings: &RenderSettings) -> Result<(), JobError> {
+    if !(settings.step.is_finite() && settings.step > 1e-3 && settings.step <= 64.0) {
+        return Err(JobError::Setting(format!(
+            "--step {} must be in (0.001, 64]",
+            settings.step
+        )));
+    }
+    if !(settings.ert > 0.0 && settings.ert.is_finite()) {
+        return Err(JobError::Setting(format!(
+            "--ert {} must be > 0 (≥ 1 disables it)",
+            settings.ert
+        )));
+    }
+    Ok(())
+}
+
 /// Errors setting up a job.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -57,19 +74,30 @@ impl RenderJob {
         brick_size: usize,
         settings: RenderSettings,
     ) -> Result<Self, JobError> {
-        if !(settings.step.is_finite() && settings.step > 1e-3 && settings.step <= 64.0) {
-            return Err(JobError::Setting(format!(
-                "--step {} must be in (0.001, 64]",
-                settings.step
-            )));
-        }
-        if !(settings.ert > 0.0 && settings.ert.is_finite()) {
-            return Err(JobError::Setting(format!(
-                "--ert {} must be > 0 (≥ 1 disables it)",
-                settings.ert
-            )));
-        }
+        check_settings(&settings)?;
         let grid = BrickGrid::from_volume(&volume, brick_size)?;
+        Self::with_grid(volume, tf, grid, settings)
+    }
+
+    /// As [`RenderJob::new`] with the brick grid (and its ranges) already made, e.g. measured
+    /// in pieces by several ranks.
+    ///
+    /// # Errors
+    /// [`JobError::Setting`] for a bad step or threshold, or a grid cut from other dims.
+    pub fn with_grid(
+        volume: Volume,
+        tf: TransferFunction,
+        grid: BrickGrid,
+        settings: RenderSettings,
+    ) -> Result<Self, JobError> {
+        check_settings(&settings)?;
+        if grid.volume_dims() != volume.dims() {
+            return Err(JobError::Setting(format!(
+                "brick grid cut from a {:?} volume, not {:?}",
+                grid.volume_dims(),
+                volume.dims()
+            )));
+        }
         let sampled = SampledTf::new(&tf, grid.value_range());
         Ok(RenderJob {
             volume,

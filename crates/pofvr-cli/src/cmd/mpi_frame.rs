@@ -1,6 +1,7 @@
 //! `pofvr render` under `mpirun` (cargo feature `mpi`): one pofvr rank per MPI process,
 //! through [`pofvr_mpi::MpiCommunicator`] and `pofvr::frame::render_frame_on`. Every rank
-//! opens the volume (memory-mapped: it touches the pages of the bricks it ray-casts),
+//! opens the volume memory-mapped and reads only the bricks it owns: it measures their value
+//! ranges (exchanged with the other ranks: culling needs every brick's) and ray-casts them,
 //! renders its share of each frame, and rank 0 writes the outputs and `--stats`, which gains
 //! `mpi_ranks` and `memory` (every rank's resident memory and host).
 //!
@@ -11,10 +12,13 @@ use std::cell::RefCell;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Result};
+use pofvr::brick::{BrickGrid, BrickId, ValueRange};
 use pofvr::comm::{Communicator, Rank};
 use pofvr::cull::OpacityBound;
+use pofvr::distribute::{BrickAssignment, Curve};
 use pofvr::frame::{render_frame_on, FrameOptions, FrameStats, RenderJob};
 use pofvr::render::{Camera, Image};
+use pofvr::volume::Volume;
 use pofvr_mpi::MpiCommunicator;
 
 use super::render::{self, Backend, MemoryStatus};
@@ -60,6 +64,41 @@ impl Backend for Mpi<'_> {
             *prev = total;
         }
         Ok(Some((image, stats)))
+    }
+
+    fn grid(&self, volume: &Volume, brick_size: usize, curve: Curve) -> Result<BrickGrid> {
+        let counts = BrickGrid::counts_for(volume.dims(), brick_size)?;
+        let owners = BrickAssignment::new(counts, curve, self.comm.size())?;
+        let me = self.comm.rank();
+        let mut grid =
+            BrickGrid::from_volume_where(volume, brick_size, &|id| owners.owner(id) == Some(me))?;
+        // Each rank's measured ranges as (id, min, max) little-endian triples.
+        let mut mine = Vec::new();
+        for id in owners.of(me) {
+            let r = grid.range(*id);
+            mine.extend_from_slice(&id.0.to_le_bytes());
+            mine.extend_from_slice(&r.min.to_le_bytes());
+            mine.extend_from_slice(&r.max.to_le_bytes());
+        }
+        let all = self.comm.all_gather(mine, GATHER_TIMEOUT)?;
+        let word = |c: &[u8]| [c[0], c[1], c[2], c[3]];
+        for (rank, bytes) in all.iter().enumerate() {
+            if bytes.len() % 12 != 0 {
+                bail!("rank {rank} sent {} bytes of brick ranges", bytes.len());
+            }
+            for t in bytes.chunks_exact(12) {
+                let id = BrickId(u32::from_le_bytes(word(&t[0..4])));
+                let range = ValueRange {
+                    min: f32::from_le_bytes(word(&t[4..8])),
+                    max: f32::from_le_bytes(word(&t[8..12])),
+                };
+                grid.set_range(id, range)?;
+            }
+        }
+        if let Some(r) = grid.ranges().iter().position(|r| r.min > r.max) {
+            bail!("brick {r}: no rank measured its value range");
+        }
+        Ok(grid)
     }
 
     fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>> {

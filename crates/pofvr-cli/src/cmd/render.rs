@@ -2,9 +2,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
+use pofvr::brick::BrickGrid;
 use pofvr::cull::{CullMode, OpacityBound};
+use pofvr::distribute::Curve;
 use pofvr::frame::{render_frame, render_reference, FrameOptions, FrameStats, RenderJob};
 use pofvr::render::{Camera, Image};
+use pofvr::volume::Volume;
 
 use crate::args::RenderArgs;
 use crate::progress::Ui;
@@ -24,6 +27,13 @@ pub(crate) trait Backend {
         camera: &Camera,
         opts: &FrameOptions,
     ) -> Result<Option<(Image, FrameStats)>>;
+
+    /// The volume's brick grid with every brick's value range. A distributed backend
+    /// measures each rank's own bricks and exchanges the ranges, so that no rank reads
+    /// bricks it does not own.
+    fn grid(&self, volume: &Volume, brick_size: usize, _curve: Curve) -> Result<BrickGrid> {
+        Ok(BrickGrid::from_volume(volume, brick_size)?)
+    }
 
     /// Called on every rank after the last frame; the root returns extra `--stats` fields.
     fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>>;
@@ -122,7 +132,13 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     let vol = resolve::volume(&a.volume)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
     let cam = resolve::camera(&a.view, &vol)?;
-    let job = RenderJob::new(vol, tf, a.volume.brick, resolve::settings(&a.view))?;
+    let curve: Curve = a
+        .frame
+        .curve
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--curve: {e}"))?;
+    let grid = backend.grid(&vol, a.volume.brick, curve)?;
+    let job = RenderJob::with_grid(vol, tf, grid, resolve::settings(&a.view))?;
     sp.set_message("rendering");
     let mut pofs = None;
     let opts = if a.frame.whole {
@@ -145,11 +161,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             cull,
             cull_threshold: a.frame.cull_threshold,
             ranks: a.frame.ranks,
-            curve: a
-                .frame
-                .curve
-                .parse()
-                .map_err(|e| anyhow::anyhow!("--curve: {e}"))?,
+            curve,
         })
     };
     let bounds = pofs.as_ref().map(|t| t as &dyn OpacityBound);

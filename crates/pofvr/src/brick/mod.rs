@@ -67,6 +67,14 @@ pub enum BrickError {
     /// The brick size is unusable.
     #[error("brick size {0} is invalid: expected 2..=1024")]
     BadSize(usize),
+    /// A brick id outside the grid.
+    #[error("brick {id} is outside the grid of {count} bricks")]
+    UnknownBrick {
+        /// The id.
+        id: u32,
+        /// Bricks in the grid.
+        count: usize,
+    },
 }
 
 impl BrickGrid {
@@ -75,11 +83,34 @@ impl BrickGrid {
     /// # Errors
     /// [`BrickError::BadSize`] when `brick_size` is outside `2..=1024`.
     pub fn from_volume(volume: &Volume, brick_size: usize) -> Result<Self, BrickError> {
+        Self::from_volume_where(volume, brick_size, &|_| true)
+    }
+
+    /// Bricks along x, y, z for a volume of `dims` voxels cut into `brick_size`³ bricks.
+    ///
+    /// # Errors
+    /// [`BrickError::BadSize`] when `brick_size` is outside `2..=1024`.
+    pub fn counts_for(dims: [usize; 3], brick_size: usize) -> Result<[usize; 3], BrickError> {
         if !(2..=1024).contains(&brick_size) {
             return Err(BrickError::BadSize(brick_size));
         }
+        Ok(dims.map(|d| (d.saturating_sub(1)).div_ceil(brick_size).max(1)))
+    }
+
+    /// As [`BrickGrid::from_volume`], reading only the bricks `measure` selects: the others
+    /// get an empty range (min +∞, max −∞) until [`BrickGrid::set_range`] fills them in.
+    /// A distributed run measures each rank's own bricks and exchanges the ranges, so that
+    /// no rank reads the whole volume.
+    ///
+    /// # Errors
+    /// [`BrickError::BadSize`] when `brick_size` is outside `2..=1024`.
+    pub fn from_volume_where(
+        volume: &Volume,
+        brick_size: usize,
+        measure: &(dyn Fn(BrickId) -> bool + Sync),
+    ) -> Result<Self, BrickError> {
         let dims = volume.dims();
-        let counts = dims.map(|d| (d.saturating_sub(1)).div_ceil(brick_size).max(1));
+        let counts = Self::counts_for(dims, brick_size)?;
         let n = counts[0] * counts[1] * counts[2];
         let mut grid = BrickGrid {
             brick_size,
@@ -87,11 +118,40 @@ impl BrickGrid {
             counts,
             ranges: Vec::new(),
         };
+        let unmeasured = ValueRange {
+            min: f32::INFINITY,
+            max: f32::NEG_INFINITY,
+        };
+        #[allow(clippy::cast_possible_truncation)]
         let ranges = with_voxels!(volume.data(), v => {
-            (0..n).into_par_iter().map(|b| grid.measure(v, dims, BrickId(b as u32))).collect()
+            (0..n)
+                .into_par_iter()
+                .map(|b| {
+                    let id = BrickId(b as u32);
+                    if measure(id) {
+                        grid.measure(v, dims, id)
+                    } else {
+                        unmeasured
+                    }
+                })
+                .collect()
         });
         grid.ranges = ranges;
         Ok(grid)
+    }
+
+    /// Sets the value range of brick `id` (measured elsewhere, e.g. by another rank).
+    ///
+    /// # Errors
+    /// [`BrickError::UnknownBrick`] when `id` is not in the grid.
+    pub fn set_range(&mut self, id: BrickId, range: ValueRange) -> Result<(), BrickError> {
+        let n = self.ranges.len();
+        let slot = self
+            .ranges
+            .get_mut(id.index())
+            .ok_or(BrickError::UnknownBrick { id: id.0, count: n })?;
+        *slot = range;
+        Ok(())
     }
 
     fn measure<T: Voxel>(&self, v: &[T], dims: [usize; 3], id: BrickId) -> ValueRange {

@@ -55,3 +55,22 @@ fn bad_brick_size_is_rejected() {
     let vol = Phantom::SheppLogan.generate(8);
     assert!(BrickGrid::from_volume(&vol, 1).is_err());
 }
+
+#[test]
+fn ranges_measured_in_pieces_and_merged_equal_the_whole_grid() {
+    let vol = Phantom::SheppLogan.generate(40);
+    let whole = BrickGrid::from_volume(&vol, 8).unwrap();
+    // Two "ranks" measure the even and the odd bricks; each fills in the other's ranges.
+    let mut even = BrickGrid::from_volume_where(&vol, 8, &|id| id.0 % 2 == 0).unwrap();
+    let odd = BrickGrid::from_volume_where(&vol, 8, &|id| id.0 % 2 == 1).unwrap();
+    assert!(even.range(BrickId(1)).min > even.range(BrickId(1)).max);
+    for id in odd.ids().filter(|id| id.0 % 2 == 1) {
+        even.set_range(id, odd.range(id)).unwrap();
+    }
+    assert_eq!(even.ranges(), whole.ranges());
+    let n = whole.len() as u32;
+    assert!(matches!(
+        even.set_range(BrickId(n), ValueRange { min: 0.0, max: 1.0 }),
+        Err(BrickError::UnknownBrick { .. })
+    ));
+}
