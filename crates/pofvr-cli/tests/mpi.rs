@@ -108,6 +108,7 @@ fn one_to_four_mpi_ranks_give_the_in_process_frame_for_both_curves() {
             d,
         );
         assert!(o.status.success(), "{}", text(&o));
+        let mut copy_total: Option<u64> = None;
         for np in 1..=4 {
             let local = format!("local-{curve}-{cull}-{np}.raw");
             let npstr = np.to_string();
@@ -141,6 +142,21 @@ fn one_to_four_mpi_ranks_give_the_in_process_frame_for_both_curves() {
                 assert_eq!(m["rank"], r, "{s}");
                 assert!(m["vm_hwm_bytes"].as_u64().unwrap() > 0, "{s}");
                 assert!(m["vm_rss_bytes"].as_u64().unwrap() <= m["vm_hwm_bytes"].as_u64().unwrap());
+            }
+            // Each rank keeps copies of its own bricks only: together they are the same
+            // bricks whatever the rank count, and none holds much more than its share.
+            let copies: Vec<u64> = memory
+                .iter()
+                .map(|m| m["brick_copy_bytes"].as_u64().unwrap())
+                .collect();
+            let total: u64 = copies.iter().sum();
+            let first = *copy_total.get_or_insert(total);
+            assert_eq!(total, first, "{curve} -np {np}: brick copies {copies:?}");
+            for c in &copies {
+                assert!(
+                    *c * np as u64 <= total * 5 / 4,
+                    "{curve} -np {np}: a rank holds {c} of {total} bytes: {copies:?}"
+                );
             }
             let rendered: u64 = s["ranks"]
                 .as_array()

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::brick::{BrickError, BrickGrid, BrickId};
+use crate::brick::{BrickError, BrickGrid, BrickId, BrickStore};
 use crate::comm::{CommError, Communicator, LocalCommunicator, Rank};
 use crate::composite::{CompositeError, Compositor, DirectSend, TileFragment, TileLayout};
 use crate::cull::{CullMode, Culler, FrameBricks, OpacityBound};
@@ -29,6 +29,10 @@ pub struct RenderJob {
     pub sampled: SampledTf,
     /// Ray-caster settings.
     pub settings: RenderSettings,
+    /// Private copies of the bricks this process ray-casts (a distributed rank's own):
+    /// when a brick is here it is sampled from its copy, not from the volume. The frame is
+    /// the same either way.
+    pub bricks: Option<BrickStore>,
 }
 
 /// Validated before the volume is scanned, so a bad flag fails fast.
@@ -105,6 +109,7 @@ impl RenderJob {
             tf,
             sampled,
             settings,
+            bricks: None,
         })
     }
 
@@ -450,7 +455,11 @@ fn rank_frame(
         .par_iter()
         .map(|id| {
             let rect = bricks.footprints[id.index()].expect("visible bricks are on screen");
-            let (pixels, st) = caster.render_box(camera, &frame, rect, &job.grid.index_box(*id));
+            let ibox = job.grid.index_box(*id);
+            let (pixels, st) = match job.bricks.as_ref().and_then(|s| s.get(*id)) {
+                Some(copy) => caster.render_box_copy(camera, &frame, rect, &ibox, copy),
+                None => caster.render_box(camera, &frame, rect, &ibox),
+            };
             (
                 TileFragment {
                     brick: *id,

@@ -8,11 +8,11 @@
 //! Any error on any rank (a missing file, a bad flag, a failed exchange) and any panic ends
 //! the whole job through `MPI_Abort`, after printing `pofvr: rank R aborted: CAUSE`.
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Result};
-use pofvr::brick::{BrickGrid, BrickId, ValueRange};
+use pofvr::brick::{BrickGrid, BrickId, BrickStore, ValueRange};
 use pofvr::comm::{Communicator, Rank};
 use pofvr::cull::OpacityBound;
 use pofvr::distribute::{BrickAssignment, Curve};
@@ -32,6 +32,8 @@ struct Mpi<'a> {
     comm: &'a MpiCommunicator,
     /// Root only: every rank's `bytes_sent` after the previous frame, to report per frame.
     sent_before: RefCell<Vec<u64>>,
+    /// Bytes of this rank's private brick copies.
+    copy_bytes: Cell<u64>,
 }
 
 impl Backend for Mpi<'_> {
@@ -101,8 +103,20 @@ impl Backend for Mpi<'_> {
         Ok(grid)
     }
 
+    fn prepare(&self, job: &mut RenderJob, curve: Curve) -> Result<()> {
+        let owners = BrickAssignment::new(job.grid.counts(), curve, self.comm.size())?;
+        let store = BrickStore::new(&job.volume, &job.grid, owners.of(self.comm.rank()));
+        // From here on only `--cull exact` (the oracle renders bricks it does not own) reads
+        // the mapping again.
+        job.volume.release_pages();
+        self.copy_bytes.set(store.bytes() as u64);
+        job.bricks = Some(store);
+        Ok(())
+    }
+
     fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>> {
-        let me = MemoryStatus::now(self.comm.rank().index());
+        let mut me = MemoryStatus::now(self.comm.rank().index());
+        me.brick_copy_bytes = self.copy_bytes.get();
         let gathered = self
             .comm
             .gather(Rank(0), serde_json::to_vec(&me)?, GATHER_TIMEOUT)?;
@@ -141,6 +155,7 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
         let backend = Mpi {
             comm: &comm,
             sent_before: RefCell::new(Vec::new()),
+            copy_bytes: Cell::new(0),
         };
         render::run_with(a, ui, &backend)
     })();

@@ -35,6 +35,12 @@ pub(crate) trait Backend {
         Ok(BrickGrid::from_volume(volume, brick_size)?)
     }
 
+    /// Called once the job is made, before the first frame: a distributed backend keeps
+    /// private copies of its own bricks and lets the volume's mapped pages go.
+    fn prepare(&self, _job: &mut RenderJob, _curve: Curve) -> Result<()> {
+        Ok(())
+    }
+
     /// Called on every rank after the last frame; the root returns extra `--stats` fields.
     fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>>;
 }
@@ -82,6 +88,9 @@ pub(crate) struct MemoryStatus {
     pub(crate) rss_anon_bytes: u64,
     /// Resident file-backed pages (`RssFile`): the memory-mapped volume pages touched.
     pub(crate) rss_file_bytes: u64,
+    /// Voxel bytes of the private copies of this rank's own bricks (MPI ranks).
+    #[serde(default)]
+    pub(crate) brick_copy_bytes: u64,
 }
 
 impl MemoryStatus {
@@ -103,6 +112,7 @@ impl MemoryStatus {
             vm_hwm_bytes: kib("VmHWM"),
             rss_anon_bytes: kib("RssAnon"),
             rss_file_bytes: kib("RssFile"),
+            brick_copy_bytes: 0,
         }
     }
 }
@@ -138,7 +148,9 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         .parse()
         .map_err(|e| anyhow::anyhow!("--curve: {e}"))?;
     let grid = backend.grid(&vol, a.volume.brick, curve)?;
-    let job = RenderJob::with_grid(vol, tf, grid, resolve::settings(&a.view))?;
+    let mut job = RenderJob::with_grid(vol, tf, grid, resolve::settings(&a.view))?;
+    backend.prepare(&mut job, curve)?;
+    let job = job;
     sp.set_message("rendering");
     let mut pofs = None;
     let opts = if a.frame.whole {

@@ -7,8 +7,11 @@
 //! each side; a brick can therefore be sampled on its own. Its value range is taken over
 //! exactly the voxels its samples can interpolate, so it bounds every sample in it.
 
+mod copy;
 #[cfg(test)]
 mod test;
+
+pub use copy::{BrickCopy, BrickStore};
 
 use rayon::prelude::*;
 

@@ -131,11 +131,21 @@ pub fn sample_range(span: (f32, f32), step: f32) -> (i32, i32) {
     (first_sample(span.0, step), first_sample(span.1, step))
 }
 
-/// Trilinear interpolation with positions clamped to the volume.
+/// Trilinear interpolation with positions clamped to the volume, over the whole volume or
+/// over a copy of one box of it (a [`crate::brick::BrickCopy`]).
+///
+/// A copy is addressed by subtracting its integer origin from the clamped position: that
+/// subtraction is exact in f32 (the origin is an integer no larger than the position, both
+/// below 2²⁴), so the cell index and the fractions — and hence every sample — are bit for bit
+/// those of the whole volume, as long as the position stays inside the copy.
 #[derive(Clone, Copy)]
 pub(crate) struct Trilinear<'v, T> {
     v: &'v [T],
+    /// The whole volume's last index per axis (the clamp).
     max: [f32; 3],
+    /// Index of voxel `v[0]` in the volume.
+    origin: [f32; 3],
+    /// Last cell of the copy per axis.
     last_cell: [usize; 3],
     stride: [usize; 3],
     step: [usize; 3],
@@ -143,12 +153,23 @@ pub(crate) struct Trilinear<'v, T> {
 
 impl<'v, T: Voxel> Trilinear<'v, T> {
     pub(crate) fn new(v: &'v [T], dims: [usize; 3]) -> Self {
-        #[allow(clippy::cast_precision_loss)]
-        let max = dims.map(|d| (d - 1) as f32);
+        Self::local(v, dims, [0; 3], dims)
+    }
+
+    /// Over `v`, the `dims` voxels from `origin` of a volume of `volume_dims` voxels.
+    #[allow(clippy::cast_precision_loss)]
+    pub(crate) fn local(
+        v: &'v [T],
+        dims: [usize; 3],
+        origin: [usize; 3],
+        volume_dims: [usize; 3],
+    ) -> Self {
+        debug_assert_eq!(v.len(), dims[0] * dims[1] * dims[2]);
         let stride = [1, dims[0], dims[0] * dims[1]];
         Trilinear {
             v,
-            max,
+            max: volume_dims.map(|d| (d - 1) as f32),
+            origin: origin.map(|o| o as f32),
             last_cell: dims.map(|d| d.saturating_sub(2)),
             stride,
             step: std::array::from_fn(|a| if dims[a] > 1 { stride[a] } else { 0 }),
@@ -166,10 +187,13 @@ impl<'v, T: Voxel> Trilinear<'v, T> {
         let mut f = [0f32; 3];
         for a in 0..3 {
             // max/min rather than clamp: clamp's `min <= max` assertion is not hoisted.
-            let x = p[a].max(0.0).min(self.max[a]);
+            // The origin's subtraction is exact (see the type's comment); for a copy the
+            // result is ≥ 0 while the position stays inside it.
+            let x = p[a].max(0.0).min(self.max[a]) - self.origin[a];
             // SAFETY: x is finite and in [0, dims-1] after the max/min above (NaN positions
             // cannot occur: rays are finite and volumes hold finite values).
-            let i = (unsafe { x.to_int_unchecked::<u32>() } as usize).min(self.last_cell[a]);
+            let i =
+                (unsafe { x.max(0.0).to_int_unchecked::<u32>() } as usize).min(self.last_cell[a]);
             f[a] = x - i as f32;
             base += i * self.stride[a];
         }
@@ -406,6 +430,37 @@ impl<'a> RayCaster<'a> {
         })
     }
 
+    /// As [`RayCaster::render_box`], sampling the private copy `copy` of the box's voxels
+    /// instead of the volume: the same samples, bit for bit (see `Trilinear`).
+    #[must_use]
+    pub fn render_box_copy(
+        &self,
+        camera: &Camera,
+        frame: &ViewFrame,
+        rect: PixelRect,
+        b: &IndexBox,
+        copy: &crate::brick::BrickCopy,
+    ) -> (Vec<[f32; 4]>, RayStats) {
+        let mut out = vec![[0f32; 4]; rect.area()];
+        debug_assert_eq!(copy.data().data_type(), self.volume.data_type());
+        let st = with_voxels!(copy.data(), v => {
+            let tri = Trilinear::local(v, copy.dims(), copy.origin(), self.volume.dims());
+            let mut st = RayStats::default();
+            let w = rect.width() as usize;
+            for (i, px) in out.iter_mut().enumerate() {
+                #[allow(clippy::cast_possible_truncation)]
+                let (x, y) = (rect.x0 + (i % w) as u32, rect.y0 + (i / w) as u32);
+                let ray = self.pixel_ray(camera, frame, x, y);
+                if let Some(span) = ray.span(b) {
+                    st.rays += 1;
+                    st.samples += self.march(&tri, &ray, sample_range(span, self.settings.step), px);
+                }
+            }
+            st
+        });
+        (out, st)
+    }
+
     /// Composites samples `k0..k1` of `ray` behind `acc`; returns the samples taken.
     ///
     /// Every path performs, for every sample, the float operations of
@@ -477,6 +532,7 @@ impl<'a> RayCaster<'a> {
             let d = _mm_setr_ps(ray.d[0], ray.d[1], ray.d[2], 0.0);
             let zero = _mm_setzero_ps();
             let max = _mm_setr_ps(tri.max[0], tri.max[1], tri.max[2], 0.0);
+            let origin = _mm_setr_ps(tri.origin[0], tri.origin[1], tri.origin[2], 0.0);
             // min(floor(x), last) = floor(min(x, last)) for x ≥ 0 and an integer `last`; cells
             // are below 2^24 per axis, so the float is exact.
             let last = _mm_setr_ps(
@@ -500,8 +556,8 @@ impl<'a> RayCaster<'a> {
                 let p = _mm_add_ps(o, _mm_mul_ps(_mm_set1_ps(t), d));
                 // As `p.max(0.0).min(max)`: `maxps` returns its second operand (0) for NaN.
                 let x = _mm_max_ps(p, zero);
-                let x = _mm_min_ps(x, max);
-                let i = _mm_cvttps_epi32(_mm_min_ps(x, last));
+                let x = _mm_sub_ps(_mm_min_ps(x, max), origin);
+                let i = _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(x, zero), last));
                 let f = _mm_sub_ps(x, _mm_cvtepi32_ps(i));
                 // Non-negative: zero extension (free) rather than sign extension.
                 let i0 = _mm_cvtsi128_si32(i) as u32 as usize;

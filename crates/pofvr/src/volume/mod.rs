@@ -292,6 +292,17 @@ impl Volume {
         self.spacing
     }
 
+    /// Lets go of the resident pages of a memory-mapped volume (see
+    /// [`Voxels::release_pages`]); they come back on the next access.
+    pub fn release_pages(&self) {
+        match self.data() {
+            VoxelData::U8(x) => x.release_pages(),
+            VoxelData::U16(x) => x.release_pages(),
+            VoxelData::I16(x) => x.release_pages(),
+            VoxelData::F32(x) => x.release_pages(),
+        }
+    }
+
     /// The stored voxels.
     #[must_use]
     pub fn data(&self) -> &VoxelData {

@@ -99,4 +99,16 @@ impl<T: Voxel> Voxels<T> {
     pub fn is_mapped(&self) -> bool {
         matches!(self.repr, Repr::Mapped { .. })
     }
+
+    /// Unmaps the resident pages of a memory-mapped file from this process (they are read
+    /// again from the file, or the page cache, on the next access); a no-op for owned
+    /// voxels. For a process that has copied what it needs.
+    pub fn release_pages(&self) {
+        #[cfg(unix)]
+        if let Repr::Mapped { map, .. } = &self.repr {
+            // SAFETY: the map is a read-only, file-backed mapping: MADV_DONTNEED only drops
+            // clean pages, and later reads fault them back in from the file unchanged.
+            let _ = unsafe { map.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) };
+        }
+    }
 }
