@@ -9,7 +9,7 @@
 //! lattice seen from one ray, since a camera's lattice is some phase of it. Samples are
 //! trilinear over the brick's voxels including its far ghost layer (what the renderer
 //! reads inside the box) and classified through the same bins as [`SampledTf`]. A basis's
-//! value is the least optical depth over the rays whose span is at least `L`.
+//! value is the least optical depth over the rays whose span is at least `L − step`.
 //!
 //! The grid's lines and an evenly spread phase set are the same for `−d`, so one
 //! hemisphere is measured and mirrored, as for the bound.
@@ -226,7 +226,11 @@ impl SampledBrick {
             *l = f32::NEG_INFINITY;
         }
         let step = ctx.step;
-        let core = ctx.core;
+        // Rays one step shorter than L are measured too: where the span changes fast with
+        // position (grazing directions, near an edge) the grid may hold no ray whose span
+        // is just over L, and those shortest core rays are the lowest. On the 128³ head at
+        // pitch 1 this removed the only violations pof check found (excess 0.2).
+        let core = ctx.core - step;
         let phases: Vec<f64> = (0..ctx.phases)
             .map(|k| k as f64 / ctx.phases as f64)
             .collect();
