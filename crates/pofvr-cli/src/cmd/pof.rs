@@ -72,7 +72,7 @@ pub(crate) struct PofKnobs {
     pub(crate) subdiv: usize,
     /// Share of the measured optical depth kept for directions (and, sampled, ray positions
     /// and phases) between the measured ones.
-    /// > default: 0.9 (bound), 0.8 (sampled)
+    /// > default: 0.9 (bound), 0.7 (sampled)
     #[arg(long)]
     pub(crate) margin: Option<f32>,
 }

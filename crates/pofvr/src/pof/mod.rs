@@ -160,7 +160,7 @@ pub const SAMPLED_PITCH: f32 = 1.0;
 /// Default lattice phases of the sampled method.
 pub const SAMPLED_PHASES: usize = 2;
 /// Default optical-depth margin of the sampled method.
-pub const SAMPLED_MARGIN: f32 = 0.8;
+pub const SAMPLED_MARGIN: f32 = 0.7;
 
 impl Default for PofSettings {
     fn default() -> Self {
