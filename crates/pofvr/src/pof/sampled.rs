@@ -317,9 +317,9 @@ impl SampledBrick {
             }
         }
         self.hints.clone_from(&sw.best_at);
-        for s in 0..p {
-            out[s] = if sw.any_core {
-                f64::from(sw.best[s].min(cap))
+        for (o, b) in out[..p].iter_mut().zip(&sw.best) {
+            *o = if sw.any_core {
+                f64::from(b.min(cap))
             } else {
                 // No core ray at all in this direction (L longer than the brick).
                 0.0
