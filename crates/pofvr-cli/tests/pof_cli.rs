@@ -85,3 +85,70 @@ fn pof_build_info_check_round_trip_and_rejects_corruption() {
         "{err}"
     );
 }
+
+#[test]
+fn pof_build_method_sampled_passes_check() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("head-sampled.pof");
+    let out = pofvr()
+        .args([
+            "pof",
+            "build",
+            "phantom:head:64",
+            "--views",
+            "12,12",
+            "--method",
+            "sampled",
+            "-o",
+        ])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("sampled method"), "{err}");
+
+    let out = pofvr()
+        .args(["pof", "info", "--json"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(info["method"], "sampled");
+    assert_eq!(info["phases"], 2);
+    let out = pofvr().args(["pof", "info"]).arg(&file).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("empirical bound"), "{text}");
+
+    let out = pofvr()
+        .args(["pof", "check", "phantom:head:64", "--views", "60", "--pof"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains(" 0 where the lookup exceeds"), "{text}");
+
+    // --phases means nothing to the bound.
+    let out = pofvr()
+        .args([
+            "pof",
+            "build",
+            "phantom:head:32",
+            "--method",
+            "bound",
+            "--phases",
+            "4",
+            "-o",
+        ])
+        .arg(dir.path().join("x.pof"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--phases"));
+}

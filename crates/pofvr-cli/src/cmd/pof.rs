@@ -9,7 +9,7 @@ use clap::{Args, Subcommand};
 use glam::DVec3;
 use pofvr::brick::{BrickGrid, BrickId};
 use pofvr::pof::reference::{core_min, ReferenceProbe};
-use pofvr::pof::{direction, Encoding, PofMode, PofSettings, PofTable};
+use pofvr::pof::{direction, Encoding, PofMethod, PofMode, PofSettings, PofTable};
 use pofvr::render::{families, SampledTf, TransferFunction};
 use pofvr::volume::{DataType, RawSpec, Volume};
 use rayon::prelude::*;
@@ -34,6 +34,12 @@ pub(crate) enum PofCommand {
 /// Knobs of the precompute shared by `pof build` and `bench pof`.
 #[derive(Args, Debug, Clone)]
 pub(crate) struct PofKnobs {
+    /// How cell values are obtained: `bound` (a rigorous lower bound, fast, loose) or
+    /// `sampled` (the ray caster's samples measured on a ray grid and kept at --margin: an
+    /// empirical bound, verified with `pofvr pof check`).
+    /// > default: bound
+    #[arg(long, default_value = "bound")]
+    pub(crate) method: String,
     /// Sample views over (θ, φ), rows × columns.
     /// > default: 36,36
     #[arg(long, value_name = "N,M", default_value = "36,36")]
@@ -52,33 +58,48 @@ pub(crate) struct PofKnobs {
     /// > default: half the brick size
     #[arg(long, value_name = "L")]
     pub(crate) core_length: Option<f32>,
-    /// Entry-face patch size of the bound, in voxels.
-    /// > default: 0.5
-    #[arg(long, default_value_t = 0.5)]
-    pub(crate) pitch: f32,
+    /// Entry-face patch size of the bound, or spacing of the sampled method's rays, in voxels.
+    /// > default: 0.5 (bound), 1 (sampled)
+    #[arg(long)]
+    pub(crate) pitch: Option<f32>,
+    /// Lattice phases per ray of the sampled method, evenly spread over a step.
+    /// > default: 2
+    #[arg(long)]
+    pub(crate) phases: Option<usize>,
     /// Measured directions per view-cell edge.
     /// > default: 2
     #[arg(long, default_value_t = 2)]
     pub(crate) subdiv: usize,
-    /// Share of the measured optical depth kept between measured directions.
-    /// > default: 0.9
-    #[arg(long, default_value_t = 0.9)]
-    pub(crate) margin: f32,
+    /// Share of the measured optical depth kept for directions (and, sampled, ray positions
+    /// and phases) between the measured ones.
+    /// > default: 0.9 (bound), 0.7 (sampled)
+    #[arg(long)]
+    pub(crate) margin: Option<f32>,
 }
 
 impl PofKnobs {
     fn settings(&self, encoding: Encoding, sets: bool) -> Result<PofSettings> {
         let v = resolve::parse_list::<usize>("--views", &self.views, Some(2))?;
+        let method: PofMethod = self
+            .method
+            .parse()
+            .map_err(|e: String| anyhow!("--method: {e}"))?;
+        if method == PofMethod::Bound && self.phases.is_some() {
+            bail!("--phases applies to --method sampled only (the bound covers every phase)");
+        }
+        let d = PofSettings::for_method(method);
         Ok(PofSettings {
+            method,
             views: [v[0], v[1]],
             encoding,
             sets,
             step: self.step,
             ert: self.ert,
             core_length: self.core_length,
-            pitch: self.pitch,
+            pitch: self.pitch.unwrap_or(d.pitch),
+            phases: self.phases.unwrap_or(d.phases),
             subdiv: self.subdiv,
-            margin: self.margin,
+            margin: self.margin.unwrap_or(d.margin),
         })
     }
 }
@@ -242,8 +263,9 @@ fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
     // The table is safely on disk: the resume file has served its purpose.
     let _ = std::fs::remove_file(&partial);
     eprintln!(
-        "{}: {} of {} bricks stored ({} non-empty computed), {} views, {} encoding, {:.0} bytes per brick per basis, {} bytes; {:.2} s, {:.0} brick-views/s per core",
+        "{}: {} method, {} of {} bricks stored ({} non-empty computed), {} views, {} encoding, {:.0} bytes per brick per basis, {} bytes; {:.2} s, {:.0} brick-views/s per core",
         a.out.display(),
+        settings.method,
         built.table.stored_bricks(),
         grid.len(),
         built.computed_bricks,
@@ -277,6 +299,8 @@ struct InfoJson {
     margin: f32,
     pitch: f32,
     subdiv: u32,
+    method: String,
+    phases: u32,
     bytes_per_brick_per_basis: f64,
     file_bytes: usize,
 }
@@ -303,6 +327,8 @@ fn info(a: &PofInfoArgs) -> Result<()> {
         margin: m.margin,
         pitch: m.pitch,
         subdiv: m.subdiv,
+        method: m.method.to_string(),
+        phases: m.phases,
         bytes_per_brick_per_basis: t.bytes_per_brick_per_basis(),
         file_bytes: t.file_len(),
     };
@@ -327,12 +353,29 @@ fn info(a: &PofInfoArgs) -> Result<()> {
         j.bases, j.bases_fingerprint
     );
     println!(
+        "method      {}",
+        match m.method {
+            PofMethod::Bound => "bound (a rigorous lower bound)".to_string(),
+            PofMethod::Sampled => format!(
+                "sampled (measured on rays {} voxels apart at {} lattice phases: an empirical bound)",
+                m.pitch, m.phases
+            ),
+        }
+    );
+    println!(
         "views       {}×{} (θ × φ), {} measured directions per cell edge, margin {}",
         m.views[0], m.views[1], m.subdiv, m.margin
     );
     println!(
-        "sampling    step {}, ert {}, core length L {}, patch pitch {}",
-        m.step, m.ert, m.core_length, m.pitch
+        "sampling    step {}, ert {}, core length L {}, {} {}",
+        m.step,
+        m.ert,
+        m.core_length,
+        match m.method {
+            PofMethod::Bound => "patch pitch",
+            PofMethod::Sampled => "ray pitch",
+        },
+        m.pitch
     );
     println!(
         "encoding    {}{}, {:.0} bytes per brick per basis",

@@ -31,7 +31,8 @@ use std::sync::Mutex;
 use rayon::prelude::*;
 
 use super::file::{self, Bytes};
-use super::{encoding, PofError, PofMeta, PofSettings, PofTable, ALPHA_MAX};
+use super::sampled::{SampledBrick, TauRows};
+use super::{encoding, PofError, PofMeta, PofMethod, PofSettings, PofTable, ALPHA_MAX};
 use crate::brick::{BrickGrid, BrickId};
 use crate::render::transfer_function::TF_BINS;
 use crate::render::{SampledTf, TransferFunction};
@@ -70,23 +71,26 @@ impl BinMin {
 }
 
 /// What the whole build shares.
-struct Ctx<'a> {
-    volume: &'a Volume,
-    grid: &'a BrickGrid,
+pub(super) struct Ctx<'a> {
+    pub(super) volume: &'a Volume,
+    pub(super) grid: &'a BrickGrid,
     sampled: &'a SampledTf,
     bins: Vec<BinMin>,
     /// Value widening so that float rounding of a trilinear sample never leaves the range.
     widen: f32,
-    p: usize,
+    pub(super) p: usize,
     views: [usize; 2],
     subdiv: usize,
-    step: f64,
-    core: f64,
-    pitch: f64,
-    margin: f64,
-    sets: bool,
+    pub(super) step: f64,
+    pub(super) core: f64,
+    pub(super) pitch: f64,
+    pub(super) margin: f64,
+    pub(super) sets: bool,
     encoding: super::Encoding,
     record_len: usize,
+    pub(super) phases: usize,
+    /// The sampled method's per-bin extinction rows.
+    tau: Option<TauRows>,
 }
 
 fn setting(field: &'static str, why: String) -> PofError {
@@ -125,6 +129,9 @@ fn validate(s: &PofSettings) -> Result<(), PofError> {
     }
     if !(s.margin.is_finite() && s.margin > 0.0 && s.margin <= 1.0) {
         return Err(setting("margin", format!("{} must be in (0, 1]", s.margin)));
+    }
+    if !(1..=64).contains(&s.phases) {
+        return Err(setting("phases", format!("{} must be 1..=64", s.phases)));
     }
     Ok(())
 }
@@ -171,6 +178,8 @@ pub(super) fn build(
         sets: settings.sets,
         encoding: settings.encoding,
         record_len,
+        phases: settings.phases,
+        tau: (settings.method == PofMethod::Sampled).then(|| TauRows::new(sampled, settings.step)),
     };
     let meta = PofMeta {
         dims: volume.dims().map(|d| d as u64),
@@ -189,6 +198,11 @@ pub(super) fn build(
         margin: settings.margin,
         pitch: settings.pitch,
         subdiv: settings.subdiv as u32,
+        method: settings.method,
+        phases: match settings.method {
+            PofMethod::Bound => 1,
+            PofMethod::Sampled => settings.phases as u32,
+        },
     };
 
     // Bricks whose value range touches a non-zero bin of some basis.
@@ -409,8 +423,16 @@ impl Ctx<'_> {
 
     /// The encoded record of a brick, or `None` when its POF is 0 for every basis.
     fn brick_record(&self, id: BrickId) -> Option<Vec<u8>> {
-        let mut bf = self.brick_field(id)?;
-        let tables = self.brick_tables(&mut bf);
+        let tables = match &self.tau {
+            None => {
+                let mut bf = self.brick_field(id)?;
+                self.brick_tables(&mut |d, out| self.direction_bound(&mut bf, d, out))
+            }
+            Some(tau) => {
+                let mut sb = SampledBrick::new(self, id)?;
+                self.brick_tables(&mut |d, out| sb.direction(self, tau, d, out))
+            }
+        };
         if tables[..self.p].iter().all(|t| t.iter().all(|a| *a <= 0.0)) {
             return None;
         }
@@ -426,7 +448,7 @@ impl Ctx<'_> {
     /// Per-function opacity tables (`views[0] × views[1]`): p conservative POFs, then the
     /// sets (basis s's p−1 companions) when asked for.
     #[allow(clippy::cast_precision_loss)]
-    fn brick_tables(&self, bf: &mut BrickField) -> Vec<Vec<f32>> {
+    fn brick_tables(&self, measure: &mut dyn FnMut([f64; 3], &mut [f64])) -> Vec<Vec<f32>> {
         use std::f64::consts::{PI, TAU};
         let [n_rows, n_cols] = self.views;
         let s = self.subdiv;
@@ -447,7 +469,7 @@ impl Ctx<'_> {
                 let dir = super::direction(theta, phi);
                 let d = [0, 1, 2].map(|a| dir[a] * unit / f64::from(spacing[a]));
                 let out = &mut pts[(r * pc + c) * funcs..(r * pc + c + 1) * funcs];
-                self.direction_bound(bf, d, out);
+                measure(d, out);
             }
         }
         let mut tables = vec![vec![0f32; n_rows * n_cols]; funcs];
@@ -469,7 +491,8 @@ impl Ctx<'_> {
                     let a = ((1.0 - (-self.margin * m[f]).exp()) as f32).clamp(0.0, ALPHA_MAX);
                     tables[f][i * n_cols + j] = a;
                     if even {
-                        // The bound holds for a line whichever way it is traversed.
+                        // Both methods' values hold for a line whichever way it is traversed
+                        // (the sampled one through its symmetric phase set).
                         tables[f][(n_rows - 1 - i) * n_cols + j + half_cols] = a;
                     }
                 }

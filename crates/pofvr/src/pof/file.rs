@@ -4,26 +4,32 @@
 //! ```text
 //!   0  magic "POFVRTBL", version u32, header length u32
 //!  16  dims [u64; 3]
-//!  40  dtype u8, encoding u8, sets u8, 0u8, brick size u32, brick count u32, basis count u32
+//!  40  dtype u8, encoding u8, sets u8, method u8, brick size u32, brick count u32, basis count u32
 //!  56  range hash u64, bases fingerprint u64
 //!  72  views [u32; 2], step f32, ert f32, L f32, margin f32, pitch f32, subdiv u32
 //! 104  index offset u64, index length u64, data offset u64, data length u64, record length u64
-//! 144  index CRC32 u32, data CRC32 u32, zeros …
+//! 144  index CRC32 u32, data CRC32 u32, phases u32, zeros …
 //! 252  header CRC32 u32 (of bytes 0..252)
 //! 256  index: one u32 per brick, the record slot or u32::MAX for a brick empty for every basis
 //!      data: slot × record length; a record is p encoded POFs, then (with sets) for each
 //!      basis s the p−1 other bases' POFs at s's q_min, padded to 8 bytes
 //! ```
+//!
+//! Version 2 added the method and phases; version 1 files (zeros there) are read as the
+//! bound method. The version was bumped, although the layout is unchanged, so that an older
+//! pofvr refuses a sampled table rather than report it as a rigorous bound.
 
 use std::path::Path;
 
 use memmap2::Mmap;
 
-use super::{Encoding, PofError, PofMeta, PofTable};
+use super::{Encoding, PofError, PofMeta, PofMethod, PofTable};
 use crate::volume::DataType;
 
 pub(crate) const MAGIC: &[u8; 8] = b"POFVRTBL";
-pub(crate) const VERSION: u32 = 1;
+pub(crate) const VERSION: u32 = 2;
+/// Oldest version still read.
+const MIN_VERSION: u32 = 1;
 pub(crate) const HEADER_LEN: usize = 256;
 
 /// The file's bytes: built in memory or mapped from disk.
@@ -76,7 +82,7 @@ pub(crate) fn assemble(meta: &PofMeta, index: &[u32], data: &[u8], record_len: u
         dtype_code(meta.dtype),
         meta.encoding.code(),
         u8::from(meta.sets),
-        0,
+        meta.method.code(),
     ]);
     out.extend_from_slice(&meta.brick_size.to_le_bytes());
     out.extend_from_slice(&meta.brick_count.to_le_bytes());
@@ -101,7 +107,8 @@ pub(crate) fn assemble(meta: &PofMeta, index: &[u32], data: &[u8], record_len: u
     let index_bytes: Vec<u8> = index.iter().flat_map(|s| s.to_le_bytes()).collect();
     out.extend_from_slice(&crc32fast::hash(&index_bytes).to_le_bytes());
     out.extend_from_slice(&crc32fast::hash(data).to_le_bytes());
-    debug_assert_eq!(out.len(), 152);
+    out.extend_from_slice(&meta.phases.to_le_bytes());
+    debug_assert_eq!(out.len(), 156);
     out.resize(HEADER_LEN - 4, 0);
     let hcrc = crc32fast::hash(&out);
     out.extend_from_slice(&hcrc.to_le_bytes());
@@ -141,11 +148,18 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
         });
     }
     let version = u32_at(8);
-    if version != VERSION {
+    if !(MIN_VERSION..=VERSION).contains(&version) {
         return Err(fmt(format!(
-            "version {version}, this pofvr reads version {VERSION}"
+            "format version {version}, this pofvr reads versions {MIN_VERSION} to {VERSION} (rebuild it with `pofvr pof build`)"
         )));
     }
+    let (method, phases) = if version >= 2 {
+        let m = PofMethod::from_code(b[43])
+            .ok_or_else(|| fmt(format!("unknown builder method code {}", b[43])))?;
+        (m, u32_at(152))
+    } else {
+        (PofMethod::Bound, 1)
+    };
     let dtype =
         dtype_from(b[40]).ok_or_else(|| fmt(format!("unknown voxel type code {}", b[40])))?;
     let encoding = Encoding::from_code(b[41])
@@ -167,6 +181,8 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
         margin: f32_at(92),
         pitch: f32_at(96),
         subdiv: u32_at(100),
+        method,
+        phases,
     };
     let to_usize =
         |v: u64, what: &str| usize::try_from(v).map_err(|_| fmt(format!("{what} {v} too large")));

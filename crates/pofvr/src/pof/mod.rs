@@ -3,6 +3,13 @@
 //!
 //! ## What a POF value guarantees
 //!
+//! With [`PofMethod::Bound`] (the default) the following holds rigorously for the measured
+//! directions and, through `margin`, for the directions between them. A
+//! [`PofMethod::Sampled`] table only aims at it: its values are measured on a finite grid
+//! of rays, phases and directions, so it is an empirical bound whose margin was chosen so
+//! that `pofvr pof check` finds no violation; it can be exceeded (it was, by up to 0.13, on
+//! the anisotropic 64×64×93 CT head), so check a sampled table on the volume it is for.
+//!
 //! For brick `b`, basis `i` and the angular cell `(θ, φ)` of a view direction `d`, the
 //! stored opacity `α` satisfies, for *every* ray of a direction in that cell whose `t`-span
 //! inside the brick's index box is at least [`PofTable::core_length`] (`L`), and for every
@@ -14,7 +21,7 @@
 //! Weights enter through Eq. 3 ([`PofTable::opacity`]); the result is capped at the
 //! early-termination threshold because a ray stops compositing there.
 //!
-//! ## How it is computed (see `build.rs`)
+//! ## How it is computed (see `build.rs`; the sampled method in `sampled.rs`)
 //!
 //! Not by rendering every view (that is `reference.rs`, the slow twin used by tests and
 //! `pofvr pof check`), but from a lower bound that holds for all continuous ray positions
@@ -27,6 +34,7 @@ mod cubic;
 mod encoding;
 mod file;
 pub mod reference;
+mod sampled;
 #[cfg(test)]
 mod test;
 
@@ -54,9 +62,69 @@ pub enum PofMode {
     Sets,
 }
 
+/// How the builder obtains each cell's least optical depth.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum PofMethod {
+    /// A rigorous lower bound over every ray position, lattice phase and direction of the
+    /// measured grid (box minima of per-cell value ranges): fast, but loose.
+    #[default]
+    Bound,
+    /// The optical depth the ray caster's own samples give, measured on a grid of parallel
+    /// rays and lattice phases and kept at `margin`: tight, an empirical bound.
+    Sampled,
+}
+
+impl PofMethod {
+    /// Both methods.
+    pub const ALL: [PofMethod; 2] = [PofMethod::Bound, PofMethod::Sampled];
+
+    /// The name used on the command line and in `pof info`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            PofMethod::Bound => "bound",
+            PofMethod::Sampled => "sampled",
+        }
+    }
+
+    pub(crate) fn code(self) -> u8 {
+        match self {
+            PofMethod::Bound => 0,
+            PofMethod::Sampled => 1,
+        }
+    }
+
+    pub(crate) fn from_code(c: u8) -> Option<Self> {
+        Some(match c {
+            0 => PofMethod::Bound,
+            1 => PofMethod::Sampled,
+            _ => return None,
+        })
+    }
+}
+
+impl std::fmt::Display for PofMethod {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for PofMethod {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        PofMethod::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| format!("unknown POF method {s:?}: expected bound or sampled"))
+    }
+}
+
 /// Knobs of the precompute.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PofSettings {
+    /// How cell values are obtained. Default [`PofMethod::Bound`].
+    pub method: PofMethod,
     /// Sample views over (θ, φ): θ ∈ [0, π] in `views[0]` rows, φ ∈ [0, 2π) in `views[1]`
     /// columns. Default `[36, 36]`.
     pub views: [usize; 2],
@@ -75,29 +143,55 @@ pub struct PofSettings {
     /// 79 % / 61 % / 45 % of the footprint: half a brick keeps most of the gain while the
     /// core stays the larger part of the footprint.
     pub core_length: Option<f32>,
-    /// Edge of the entry-face patches the bound is evaluated on, in voxels (≤ 0.5 keeps a
-    /// patch inside at most two cells per axis for step ≤ 0.5). Default 0.5.
+    /// `Bound`: edge of the entry-face patches the bound is evaluated on, in voxels (≤ 0.5
+    /// keeps a patch inside at most two cells per axis for step ≤ 0.5). Default 0.5.
+    /// `Sampled`: spacing of the measured parallel rays, in voxels. Default
+    /// [`SAMPLED_PITCH`].
     pub pitch: f32,
+    /// `Sampled` only: lattice phases measured per ray, evenly spread over a step (an
+    /// evenly spread set is symmetric under reversal, which lets one hemisphere of
+    /// directions stand for both). Default [`SAMPLED_PHASES`].
+    pub phases: usize,
     /// Directions measured per cell edge: a cell's value is the minimum over a
     /// `(subdiv+1)²` grid of directions including its borders. Default 2.
     pub subdiv: usize,
     /// Fraction of the measured optical depth kept, for directions between the measured
-    /// ones. Applied to optical depth so that Eq. 3 stays exact for one basis. Default 0.9.
+    /// ones (and, for `Sampled`, for ray positions and phases between the measured ones).
+    /// Applied to optical depth so that Eq. 3 stays exact for one basis. Default 0.9
+    /// (`Bound`) or [`SAMPLED_MARGIN`] (`Sampled`).
     pub margin: f32,
 }
 
+/// Default ray spacing of the sampled method, in voxels.
+pub const SAMPLED_PITCH: f32 = 1.0;
+/// Default lattice phases of the sampled method.
+pub const SAMPLED_PHASES: usize = 2;
+/// Default optical-depth margin of the sampled method.
+pub const SAMPLED_MARGIN: f32 = 0.7;
+
 impl Default for PofSettings {
     fn default() -> Self {
+        Self::for_method(PofMethod::default())
+    }
+}
+
+impl PofSettings {
+    /// The defaults of `method`: pitch, phases and margin differ between methods.
+    #[must_use]
+    pub fn for_method(method: PofMethod) -> Self {
+        let sampled = method == PofMethod::Sampled;
         PofSettings {
+            method,
             views: [36, 36],
             encoding: Encoding::Table,
             sets: false,
             step: 1.0,
             ert: 0.99,
             core_length: None,
-            pitch: 0.5,
+            pitch: if sampled { SAMPLED_PITCH } else { 0.5 },
+            phases: if sampled { SAMPLED_PHASES } else { 1 },
             subdiv: 2,
-            margin: 0.9,
+            margin: if sampled { SAMPLED_MARGIN } else { 0.9 },
         }
     }
 }
@@ -201,6 +295,10 @@ pub struct PofMeta {
     pub pitch: f32,
     /// Direction subdivisions per cell.
     pub subdiv: u32,
+    /// Builder method (files of format version 1 are all `Bound`).
+    pub method: PofMethod,
+    /// Lattice phases measured (`Sampled`; 1 for `Bound`, which covers every phase).
+    pub phases: u32,
 }
 
 /// The POFs of every brick of a volume for one family, ready for lookups; built in memory

@@ -67,9 +67,13 @@ fn table(s: &Scene, settings: &PofSettings) -> PofTable {
 }
 
 fn small_views() -> PofSettings {
+    small_views_for(PofMethod::Bound)
+}
+
+fn small_views_for(method: PofMethod) -> PofSettings {
     PofSettings {
         views: [12, 12],
-        ..PofSettings::default()
+        ..PofSettings::for_method(method)
     }
 }
 
@@ -249,6 +253,16 @@ fn conservative_mode_never_exceeds_brute_force_for_random_weights() {
 
 #[test]
 fn eq3_is_exact_for_one_basis() {
+    eq3_is_exact_for_one_basis_with(PofMethod::Bound);
+}
+
+#[test]
+fn eq3_is_exact_for_one_basis_sampled() {
+    eq3_is_exact_for_one_basis_with(PofMethod::Sampled);
+}
+
+fn eq3_is_exact_for_one_basis_with(method: PofMethod) {
+    let settings = small_views_for(method);
     // Step-shaped bases make the tabulated extinction exactly −ln(1−α) per level, so a
     // family built for k·τ is the same family as τ with weight k.
     let fam = |a: f64, b: f64| {
@@ -271,14 +285,14 @@ fn eq3_is_exact_for_one_basis() {
     };
     let (a, b) = (0.03f64, 0.08f64);
     let base = scene(vol(), fam(a, b));
-    let t1 = table(&base, &small_views());
+    let t1 = table(&base, &settings);
     for k in [0.5f32, 2.0, 3.5] {
         let kf = f64::from(k);
         let scaled = scene(
             vol(),
             fam(1.0 - (1.0 - a).powf(kf), 1.0 - (1.0 - b).powf(kf)),
         );
-        let tk = table(&scaled, &small_views());
+        let tk = table(&scaled, &settings);
         let mut rng = seeded_rng();
         let mut nonzero = 0;
         for _ in 0..300 {
@@ -288,7 +302,7 @@ fn eq3_is_exact_for_one_basis() {
             let b = tk.opacity(id, dir, &[1.0], PofMode::Conservative);
             assert!(
                 (a - b).abs() <= 2e-4 * b.max(1e-3),
-                "k={k}: τ with weight k gives {a}, kτ gives {b}"
+                "{method}: k={k}: τ with weight k gives {a}, kτ gives {b}"
             );
             if b > 0.0 {
                 nonzero += 1;
@@ -303,6 +317,15 @@ fn eq3_is_exact_for_one_basis() {
 
 #[test]
 fn sets_are_never_below_conservative_mode() {
+    sets_are_never_below_conservative_mode_with(PofMethod::Bound);
+}
+
+#[test]
+fn sampled_sets_are_never_below_conservative_mode() {
+    sets_are_never_below_conservative_mode_with(PofMethod::Sampled);
+}
+
+fn sets_are_never_below_conservative_mode_with(method: PofMethod) {
     let s = phantom(64);
     for enc in [Encoding::Table, Encoding::Cubic, Encoding::U8] {
         let t = table(
@@ -310,7 +333,7 @@ fn sets_are_never_below_conservative_mode() {
             &PofSettings {
                 sets: true,
                 encoding: enc,
-                ..small_views()
+                ..small_views_for(method)
             },
         );
         assert!(t.has_sets());
@@ -322,7 +345,7 @@ fn sets_are_never_below_conservative_mode() {
             let w = [rng.gen_range(0.0..2.0), rng.gen_range(0.0..2.0)];
             let c = t.opacity(id, dir, &w, PofMode::Conservative);
             let a = t.opacity(id, dir, &w, PofMode::Sets);
-            assert!(a >= c, "{enc}: sets {a} below conservative {c}");
+            assert!(a >= c, "{method} {enc}: sets {a} below conservative {c}");
             if a > c {
                 higher += 1;
             }
@@ -331,7 +354,7 @@ fn sets_are_never_below_conservative_mode() {
             let ca = t.opacity_cone(id, axis, 0.2, &w, PofMode::Sets);
             assert!(ca >= cc);
         }
-        eprintln!("{enc}: sets above conservative in {higher}/400 lookups");
+        eprintln!("{method} {enc}: sets above conservative in {higher}/400 lookups");
     }
 }
 
@@ -579,4 +602,121 @@ fn real_anisotropic_ct_lookups_never_exceed_brute_force() {
     });
     eprintln!("headsq: {n} views, mean lookup/brute-force optical depth {ratio:.3}");
     assert!(n > 40);
+}
+
+#[test]
+fn sampled_lookup_never_exceeds_brute_force_in_every_encoding() {
+    let s = phantom(64);
+    let mut rng = seeded_rng();
+    for enc in Encoding::ALL {
+        let t = table(
+            &s,
+            &PofSettings {
+                encoding: enc,
+                ..small_views_for(PofMethod::Sampled)
+            },
+        );
+        assert_eq!(t.meta().method, PofMethod::Sampled);
+        for basis in 0..2 {
+            let (n, ratio) = check_conservative(&s, &t, 40, &mut rng, &|_| {
+                if basis == 0 {
+                    vec![1.0, 0.0]
+                } else {
+                    vec![0.0, 1.0]
+                }
+            });
+            eprintln!("sampled {enc}: basis {basis}: {n} views compared, mean lookup/brute-force optical depth {ratio:.3}");
+            assert!(n > 10);
+        }
+    }
+    let t = table(&s, &small_views_for(PofMethod::Sampled));
+    let (n, ratio) = check_conservative(&s, &t, 80, &mut rng, &|r| {
+        vec![r.gen_range(0.0..3.0), r.gen_range(0.0..3.0)]
+    });
+    eprintln!(
+        "sampled, random weights: {n} views, mean lookup/brute-force optical depth {ratio:.3}"
+    );
+    assert!(n > 30);
+    // Measured, not bounded: it keeps about twice the bound's share of the true depth
+    // (measured 0.44 against the bound's 0.21 on this phantom at 12×12 views).
+    assert!(ratio > 0.35, "mean ratio {ratio}");
+}
+
+#[test]
+fn sampled_table_is_tighter_than_the_bound() {
+    let s = phantom(64);
+    let bound = table(&s, &small_views());
+    let sampled = table(&s, &small_views_for(PofMethod::Sampled));
+    let (mut sum_b, mut sum_s, mut cells, mut at_least, mut above) = (0f64, 0f64, 0, 0, 0);
+    for id in s.grid.ids() {
+        for i in 0..12 {
+            for j in 0..12 {
+                let b = bound.basis_opacities(id, (i, j));
+                let a = sampled.basis_opacities(id, (i, j));
+                for (x, y) in b.iter().zip(&a) {
+                    if *x <= 0.0 && *y <= 0.0 {
+                        continue;
+                    }
+                    sum_b += f64::from(*x);
+                    sum_s += f64::from(*y);
+                    cells += 1;
+                    at_least += usize::from(y >= x);
+                    above += usize::from(*y > 1.5 * *x);
+                }
+            }
+        }
+    }
+    #[allow(clippy::cast_precision_loss)]
+    let share = at_least as f64 / cells as f64;
+    eprintln!(
+        "{cells} non-zero cells: mean bound {:.4}, mean sampled {:.4}; sampled ≥ bound in {:.1}%, > 1.5× in {above}",
+        sum_b / f64::from(cells),
+        sum_s / f64::from(cells),
+        100.0 * share
+    );
+    // Measured 0.219 against 0.115 over 932 cells (12×12 views: the coarse cells cost the
+    // sampled method more than the bound). Where the bound is already tight (uniform
+    // material) the sampled method's smaller margin leaves it a little below: 77 % of cells
+    // are at least the bound.
+    assert!(cells > 500);
+    assert!(sum_s >= 1.7 * sum_b, "sampled {sum_s} vs bound {sum_b}");
+    assert!(share > 0.7, "sampled ≥ bound in only {share}");
+}
+
+#[test]
+fn files_of_format_version_1_are_read_as_bound_and_unknown_versions_refused() {
+    let s = phantom(48);
+    let t = table(&s, &small_views());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("head.pof");
+    t.save(&path).unwrap();
+    let good = std::fs::read(&path).unwrap();
+    let with = |version: u32| {
+        let mut b = good.clone();
+        b[8..12].copy_from_slice(&version.to_le_bytes());
+        // Version 1 had zeros where the method and phases now are.
+        b[43] = 0;
+        b[152..156].copy_from_slice(&[0; 4]);
+        let crc = crc32fast::hash(&b[..file::HEADER_LEN - 4]);
+        b[file::HEADER_LEN - 4..file::HEADER_LEN].copy_from_slice(&crc.to_le_bytes());
+        let p = dir.path().join(format!("v{version}.pof"));
+        std::fs::write(&p, &b).unwrap();
+        p
+    };
+    let v1 = PofTable::load(&with(1), &s.volume, &s.grid, &s.tf).unwrap();
+    assert_eq!(v1.meta().method, PofMethod::Bound);
+    let mut rng = seeded_rng();
+    for _ in 0..100 {
+        let id = BrickId(rng.gen_range(0..s.grid.len() as u32));
+        let d = random_dir(&mut rng);
+        assert_eq!(
+            v1.opacity(id, d, &[1.0, 1.0], PofMode::Conservative),
+            t.opacity(id, d, &[1.0, 1.0], PofMode::Conservative)
+        );
+    }
+    let e = PofTable::open(&with(3)).unwrap_err().to_string();
+    assert!(
+        e.contains("v3.pof") && e.contains("format version 3"),
+        "{e}"
+    );
 }

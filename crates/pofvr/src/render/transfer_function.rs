@@ -331,6 +331,13 @@ impl SampledTf {
         (((v - self.lo) * self.scale).max(0.0) as usize).min(TF_BINS - 1)
     }
 
+    /// `(lo, scale)` of the bin lookup: bin = ⌊(v − lo)·scale⌋ clamped, as the classifier
+    /// computes it.
+    #[must_use]
+    pub(crate) fn bin_params(&self) -> (f32, f32) {
+        (self.lo, self.scale)
+    }
+
     /// Inclusive bin range that values in `r` fall in.
     #[must_use]
     pub fn bin_range(&self, r: ValueRange) -> (usize, usize) {
