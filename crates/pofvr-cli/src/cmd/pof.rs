@@ -276,6 +276,14 @@ fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
         built.seconds,
         rate(&built, &settings)
     );
+    if settings.method == PofMethod::Sampled {
+        eprintln!(
+            "note: the sampled method measures rather than bounds; before culling with {}, \
+             run `pofvr pof check` on this volume (it exits non-zero if a lookup exceeds \
+             the brute-force minimum)",
+            a.out.display()
+        );
+    }
     Ok(())
 }
 
