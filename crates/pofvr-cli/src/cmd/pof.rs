@@ -75,6 +75,10 @@ pub(crate) struct PofKnobs {
     /// > default: 0.9 (bound), 0.7 (sampled)
     #[arg(long)]
     pub(crate) margin: Option<f32>,
+    /// Leave out the joint POF (the whole family at the file's weights, which lifts the
+    /// bound where bases take turns along a ray; stored for 2 to 16 bases).
+    #[arg(long)]
+    pub(crate) no_joint: bool,
 }
 
 impl PofKnobs {
@@ -100,6 +104,7 @@ impl PofKnobs {
             phases: self.phases.unwrap_or(d.phases),
             subdiv: self.subdiv,
             margin: self.margin.unwrap_or(d.margin),
+            joint: !self.no_joint,
         })
     }
 }
@@ -309,7 +314,11 @@ struct InfoJson {
     subdiv: u32,
     method: String,
     phases: u32,
+    /// Anchor weights of the joint POF (null when the file has none).
+    joint: Option<Vec<f32>>,
     bytes_per_brick_per_basis: f64,
+    /// Everything stored per non-empty brick (POFs, sets, joint POF).
+    bytes_per_brick: usize,
     file_bytes: usize,
 }
 
@@ -337,7 +346,9 @@ fn info(a: &PofInfoArgs) -> Result<()> {
         subdiv: m.subdiv,
         method: m.method.to_string(),
         phases: m.phases,
+        joint: m.joint.clone(),
         bytes_per_brick_per_basis: t.bytes_per_brick_per_basis(),
+        bytes_per_brick: t.bytes_per_brick(),
         file_bytes: t.file_len(),
     };
     if a.json {
@@ -360,6 +371,9 @@ fn info(a: &PofInfoArgs) -> Result<()> {
         "family      {} bases, fingerprint {}",
         j.bases, j.bases_fingerprint
     );
+    if let Some(a) = &m.joint {
+        println!("joint       the family at weights {a:?} (scaled to any weights at lookup)");
+    }
     println!(
         "method      {}",
         match m.method {
@@ -386,10 +400,11 @@ fn info(a: &PofInfoArgs) -> Result<()> {
         m.pitch
     );
     println!(
-        "encoding    {}{}, {:.0} bytes per brick per basis",
+        "encoding    {}{}, {:.0} bytes per brick per basis, {} bytes per stored brick",
         j.encoding,
         if m.sets { " with POF sets" } else { "" },
-        j.bytes_per_brick_per_basis
+        j.bytes_per_brick_per_basis,
+        j.bytes_per_brick
     );
     Ok(())
 }

@@ -91,6 +91,8 @@ pub(super) struct Ctx<'a> {
     pub(super) phases: usize,
     /// The sampled method's per-bin extinction rows.
     tau: Option<TauRows>,
+    /// The joint POF's one-basis context (the family at the build's weights).
+    joint: Option<Box<Ctx<'a>>>,
 }
 
 fn setting(field: &'static str, why: String) -> PofError {
@@ -159,10 +161,15 @@ pub(super) fn build(
         .core_length
         .unwrap_or(grid.brick_size() as f32 / 2.0);
     let views32 = settings.views.map(|v| v as u32);
-    let funcs = p + if settings.sets { p * (p - 1) } else { 0 };
+    // One basis needs no joint POF: Eq. 3 is already exact.
+    let anchor = (settings.joint && (2..=super::JOINT_MAX_BASES).contains(&p))
+        .then(|| tf.weights.clone())
+        .filter(|w| w.iter().any(|k| *k > 0.0));
+    let funcs = p + if settings.sets { p * (p - 1) } else { 0 } + usize::from(anchor.is_some());
     let record_len = (funcs * settings.encoding.function_bytes(views32)).next_multiple_of(8);
     let range = grid.value_range();
-    let ctx = Ctx {
+    let joint_sampled = anchor.as_ref().map(|a| sampled.joint(a));
+    let mut ctx = Ctx {
         volume,
         grid,
         sampled,
@@ -180,7 +187,11 @@ pub(super) fn build(
         record_len,
         phases: settings.phases,
         tau: (settings.method == PofMethod::Sampled).then(|| TauRows::new(sampled, settings.step)),
+        joint: None,
     };
+    ctx.joint = joint_sampled
+        .as_ref()
+        .map(|js| Box::new(ctx.sibling(js, settings.step)));
     let meta = PofMeta {
         dims: volume.dims().map(|d| d as u64),
         dtype: volume.data_type(),
@@ -203,6 +214,7 @@ pub(super) fn build(
             PofMethod::Bound => 1,
             PofMethod::Sampled => settings.phases as u32,
         },
+        joint: anchor,
     };
 
     // Bricks whose value range touches a non-zero bin of some basis.
@@ -372,7 +384,7 @@ impl BrickField {
     }
 }
 
-impl Ctx<'_> {
+impl<'a> Ctx<'a> {
     fn bin_range(&self, lo: f32, hi: f32) -> (usize, usize) {
         let b0 = self.sampled.bin(lo - self.widen);
         let b1 = self.sampled.bin(hi + self.widen).max(b0);
@@ -423,18 +435,22 @@ impl Ctx<'_> {
 
     /// The encoded record of a brick, or `None` when its POF is 0 for every basis.
     fn brick_record(&self, id: BrickId) -> Option<Vec<u8>> {
-        let tables = match &self.tau {
-            None => {
-                let mut bf = self.brick_field(id)?;
-                self.brick_tables(&mut |d, out| self.direction_bound(&mut bf, d, out))
-            }
-            Some(tau) => {
-                let mut sb = SampledBrick::new(self, id)?;
-                self.brick_tables(&mut |d, out| sb.direction(self, tau, d, out))
-            }
-        };
-        if tables[..self.p].iter().all(|t| t.iter().all(|a| *a <= 0.0)) {
+        let zero = |t: &Vec<f32>| t.iter().all(|a| *a <= 0.0);
+        let own = self.tables_of(id).filter(|t| !t[..self.p].iter().all(zero));
+        let joint = self
+            .joint
+            .as_ref()
+            .and_then(|j| j.tables_of(id))
+            .and_then(|mut t| t.pop())
+            .filter(|t| !zero(t));
+        if own.is_none() && joint.is_none() {
             return None;
+        }
+        let cells = self.views[0] * self.views[1];
+        let funcs = self.p + if self.sets { self.p * (self.p - 1) } else { 0 };
+        let mut tables = own.unwrap_or_else(|| vec![vec![0.0; cells]; funcs]);
+        if self.joint.is_some() {
+            tables.push(joint.unwrap_or_else(|| vec![0.0; cells]));
         }
         let views = self.views.map(|v| v as u32);
         let mut out = Vec::with_capacity(self.record_len);
@@ -443,6 +459,46 @@ impl Ctx<'_> {
         }
         out.resize(self.record_len, 0);
         Some(out)
+    }
+
+    /// The same build over another family table, without sets (the joint POF's).
+    fn sibling(&self, sampled: &'a SampledTf, step: f32) -> Ctx<'a> {
+        Ctx {
+            volume: self.volume,
+            grid: self.grid,
+            sampled,
+            bins: (0..sampled.basis_count())
+                .map(|i| BinMin::new(sampled.tau_table(i)))
+                .collect(),
+            widen: self.widen,
+            p: sampled.basis_count(),
+            views: self.views,
+            subdiv: self.subdiv,
+            step: self.step,
+            core: self.core,
+            pitch: self.pitch,
+            margin: self.margin,
+            sets: false,
+            encoding: self.encoding,
+            record_len: self.record_len,
+            phases: self.phases,
+            tau: self.tau.as_ref().map(|_| TauRows::new(sampled, step)),
+            joint: None,
+        }
+    }
+
+    /// The brick's tables, or `None` when it is empty for every basis of this context.
+    fn tables_of(&self, id: BrickId) -> Option<Vec<Vec<f32>>> {
+        Some(match &self.tau {
+            None => {
+                let mut bf = self.brick_field(id)?;
+                self.brick_tables(&mut |d, out| self.direction_bound(&mut bf, d, out))
+            }
+            Some(tau) => {
+                let mut sb = SampledBrick::new(self, id)?;
+                self.brick_tables(&mut |d, out| sb.direction(self, tau, d, out))
+            }
+        })
     }
 
     /// Per-function opacity tables (`views[0] × views[1]`): p conservative POFs, then the

@@ -8,16 +8,19 @@
 //!  56  range hash u64, bases fingerprint u64
 //!  72  views [u32; 2], step f32, ert f32, L f32, margin f32, pitch f32, subdiv u32
 //! 104  index offset u64, index length u64, data offset u64, data length u64, record length u64
-//! 144  index CRC32 u32, data CRC32 u32, phases u32, zeros …
+//! 144  index CRC32 u32, data CRC32 u32, phases u32, joint basis count u32 (0: none)
+//! 160  joint anchor weights [f32; 16], zeros …
 //! 252  header CRC32 u32 (of bytes 0..252)
 //! 256  index: one u32 per brick, the record slot or u32::MAX for a brick empty for every basis
 //!      data: slot × record length; a record is p encoded POFs, then (with sets) for each
-//!      basis s the p−1 other bases' POFs at s's q_min, padded to 8 bytes
+//!      basis s the p−1 other bases' POFs at s's q_min, then (with a joint anchor) the
+//!      joint POF, padded to 8 bytes
 //! ```
 //!
 //! Version 2 added the method and phases; version 1 files (zeros there) are read as the
 //! bound method. The version was bumped, although the layout is unchanged, so that an older
-//! pofvr refuses a sampled table rather than report it as a rigorous bound.
+//! pofvr refuses a sampled table rather than report it as a rigorous bound. Version 3 added
+//! the joint POF (an older pofvr would misread its records).
 
 use std::path::Path;
 
@@ -27,7 +30,7 @@ use super::{Encoding, PofError, PofMeta, PofMethod, PofTable};
 use crate::volume::DataType;
 
 pub(crate) const MAGIC: &[u8; 8] = b"POFVRTBL";
-pub(crate) const VERSION: u32 = 2;
+pub(crate) const VERSION: u32 = 3;
 /// Oldest version still read.
 const MIN_VERSION: u32 = 1;
 pub(crate) const HEADER_LEN: usize = 256;
@@ -109,6 +112,12 @@ pub(crate) fn assemble(meta: &PofMeta, index: &[u32], data: &[u8], record_len: u
     out.extend_from_slice(&crc32fast::hash(data).to_le_bytes());
     out.extend_from_slice(&meta.phases.to_le_bytes());
     debug_assert_eq!(out.len(), 156);
+    let anchor = meta.joint.as_deref().unwrap_or(&[]);
+    debug_assert!(anchor.len() <= super::JOINT_MAX_BASES);
+    out.extend_from_slice(&(anchor.len() as u32).to_le_bytes());
+    for w in anchor {
+        out.extend_from_slice(&w.to_le_bytes());
+    }
     out.resize(HEADER_LEN - 4, 0);
     let hcrc = crc32fast::hash(&out);
     out.extend_from_slice(&hcrc.to_le_bytes());
@@ -183,7 +192,25 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
         subdiv: u32_at(100),
         method,
         phases,
+        joint: None,
     };
+    let mut meta = meta;
+    if version >= 3 {
+        let n = u32_at(156) as usize;
+        if n > super::JOINT_MAX_BASES || (n != 0 && n != meta.basis_count as usize) {
+            return Err(fmt(format!(
+                "joint anchor of {n} weights for {} bases",
+                meta.basis_count
+            )));
+        }
+        if n > 0 {
+            let anchor: Vec<f32> = (0..n).map(|i| f32_at(160 + 4 * i)).collect();
+            if anchor.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+                return Err(fmt(format!("joint anchor weights {anchor:?}")));
+            }
+            meta.joint = Some(anchor);
+        }
+    }
     let to_usize =
         |v: u64, what: &str| usize::try_from(v).map_err(|_| fmt(format!("{what} {v} too large")));
     let index_offset = to_usize(u64_at(104), "index offset")?;
@@ -201,8 +228,7 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
             meta.basis_count
         )));
     }
-    let p = meta.basis_count as usize;
-    let funcs = p + if meta.sets { p * (p - 1) } else { 0 };
+    let funcs = meta.functions();
     let want_record = (funcs * encoding.function_bytes(meta.views)).next_multiple_of(8);
     if record_len != want_record {
         return Err(fmt(format!(

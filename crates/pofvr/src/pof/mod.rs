@@ -160,7 +160,19 @@ pub struct PofSettings {
     /// Applied to optical depth so that Eq. 3 stays exact for one basis. Default 0.9
     /// (`Bound`) or [`SAMPLED_MARGIN`] (`Sampled`).
     pub margin: f32,
+    /// Also store the POF of the whole family at the build's weights `a` (the *joint*
+    /// POF), for families of two or more bases. Default true.
+    ///
+    /// Per-basis POFs are loose when the bases take turns along a ray (grey and white
+    /// matter): each basis's minimum is on a ray where the other carries the opacity, and
+    /// Eq. 3 combines the two minima. Opacity only grows with every weight, so for any
+    /// weights `w` the joint POF scaled to `c = minᵢ wᵢ/aᵢ` is still a lower bound, and a
+    /// lookup takes the larger of it and Eq. 3 (exact again for weights along `a`).
+    pub joint: bool,
 }
+
+/// Most bases a joint POF is stored for (the anchor weights live in the file header).
+pub const JOINT_MAX_BASES: usize = 16;
 
 /// Default ray spacing of the sampled method, in voxels.
 pub const SAMPLED_PITCH: f32 = 1.0;
@@ -192,6 +204,7 @@ impl PofSettings {
             phases: if sampled { SAMPLED_PHASES } else { 1 },
             subdiv: 2,
             margin: if sampled { SAMPLED_MARGIN } else { 0.9 },
+            joint: true,
         }
     }
 }
@@ -299,6 +312,17 @@ pub struct PofMeta {
     pub method: PofMethod,
     /// Lattice phases measured (`Sampled`; 1 for `Bound`, which covers every phase).
     pub phases: u32,
+    /// The anchor weights of the joint POF, when the file has one (format version 3).
+    pub joint: Option<Vec<f32>>,
+}
+
+impl PofMeta {
+    /// Encoded functions per record: p POFs, the sets, the joint POF.
+    #[must_use]
+    pub fn functions(&self) -> usize {
+        let p = self.basis_count as usize;
+        p + if self.sets { p * (p - 1) } else { 0 } + usize::from(self.joint.is_some())
+    }
 }
 
 /// The POFs of every brick of a volume for one family, ready for lookups; built in memory
@@ -496,11 +520,18 @@ impl PofTable {
         self.meta.sets
     }
 
-    /// Stored bytes per non-empty brick and basis (POF sets included when present).
+    /// Bytes of one basis's POF for one brick: the encoding's cost, the figure the paper
+    /// compares (table vs polynomial). Sets and the joint POF add to [`PofTable::bytes_per_brick`].
     #[must_use]
     #[allow(clippy::cast_precision_loss)]
     pub fn bytes_per_brick_per_basis(&self) -> f64 {
-        self.record_len as f64 / f64::from(self.meta.basis_count.max(1))
+        self.meta.encoding.function_bytes(self.meta.views) as f64
+    }
+
+    /// Stored bytes per non-empty brick: every basis's POF, the sets and the joint POF.
+    #[must_use]
+    pub fn bytes_per_brick(&self) -> usize {
+        self.record_len
     }
 
     /// Total file size in bytes.
@@ -605,7 +636,39 @@ impl PofTable {
                 .fold(f32::INFINITY, f32::min),
             _ => combine(None),
         };
-        a.clamp(0.0, self.meta.ert)
+        a.max(self.joint_opacity(rec, cell, weights))
+            .clamp(0.0, self.meta.ert)
+    }
+
+    /// The joint POF scaled to `weights`: with anchor `a`, every weight vector is at least
+    /// `c·a` for `c = minᵢ wᵢ/aᵢ` over the bases with `aᵢ > 0`, and a ray's optical depth
+    /// grows with every weight, so `1 − (1 − α_joint)^c` stays a lower bound.
+    fn joint_opacity(&self, rec: &[u8], cell: (usize, usize), weights: &[f32]) -> f32 {
+        let Some(anchor) = &self.meta.joint else {
+            return 0.0;
+        };
+        let mut c = f64::INFINITY;
+        for (i, a) in anchor.iter().enumerate() {
+            if *a > 0.0 {
+                let w = weights.get(i).copied().unwrap_or(0.0).max(0.0);
+                c = c.min(f64::from(w) / f64::from(*a));
+            }
+        }
+        if !(c.is_finite() && c > 0.0) {
+            return 0.0;
+        }
+        let idx = self.meta.functions() - 1;
+        let size = self.meta.encoding.function_bytes(self.meta.views);
+        let aj = encoding::decode(
+            self.meta.encoding,
+            &rec[idx * size..(idx + 1) * size],
+            self.meta.views,
+            cell,
+        )
+        .clamp(0.0, ALPHA_MAX);
+        #[allow(clippy::cast_possible_truncation)]
+        let a = (1.0 - (c * (1.0 - f64::from(aj)).ln()).exp()) as f32;
+        a
     }
 
     /// Run-time opacity of `brick` seen along `view_dir` (unit world direction, eye to

@@ -445,7 +445,14 @@ fn file_round_trip_keeps_every_value() {
 #[test]
 fn corrupted_or_mismatched_files_are_rejected_with_a_clear_message() {
     let s = phantom(48);
-    let t = table(&s, &small_views());
+    // Version 1 had no joint POF.
+    let t = table(
+        &s,
+        &PofSettings {
+            joint: false,
+            ..small_views()
+        },
+    );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("head.pof");
     t.save(&path).unwrap();
@@ -686,7 +693,14 @@ fn sampled_table_is_tighter_than_the_bound() {
 #[test]
 fn files_of_format_version_1_are_read_as_bound_and_unknown_versions_refused() {
     let s = phantom(48);
-    let t = table(&s, &small_views());
+    // Version 1 had no joint POF.
+    let t = table(
+        &s,
+        &PofSettings {
+            joint: false,
+            ..small_views()
+        },
+    );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("head.pof");
     t.save(&path).unwrap();
@@ -714,9 +728,78 @@ fn files_of_format_version_1_are_read_as_bound_and_unknown_versions_refused() {
             t.opacity(id, d, &[1.0, 1.0], PofMode::Conservative)
         );
     }
-    let e = PofTable::open(&with(3)).unwrap_err().to_string();
+    let e = PofTable::open(&with(4)).unwrap_err().to_string();
     assert!(
-        e.contains("v3.pof") && e.contains("format version 3"),
+        e.contains("v4.pof") && e.contains("format version 4"),
         "{e}"
     );
+}
+
+#[test]
+fn joint_pof_lifts_lookups_and_stays_below_brute_force_for_any_weights() {
+    // Two bands that overlap and take turns along the smooth Marschner–Lobb signal, as grey
+    // and white matter do in an MRI (the head phantom's skin and bone bases leave a gap of
+    // values between them, where no joint POF can help).
+    let tf = TransferFunction::from_json(
+        r#"{"bases": [
+            {"name": "low", "opacity": [[0.2, 0.0], [0.35, 0.15], [0.6, 0.15], [0.7, 0.0]]},
+            {"name": "high", "opacity": [[0.55, 0.0], [0.7, 0.3], [1.0, 0.3]]}],
+          "weights": [1.0, 1.0], "color": [[0, 1, 1, 1], [1, 1, 1, 1]]}"#,
+        "bands",
+    )
+    .unwrap();
+    let s = scene(Phantom::MarschnerLobb.generate(48), tf);
+    let anchor = s.tf.weights.clone();
+    let with = table(&s, &small_views());
+    let without = table(
+        &s,
+        &PofSettings {
+            joint: false,
+            ..small_views()
+        },
+    );
+    assert_eq!(with.meta().joint.as_deref(), Some(anchor.as_slice()));
+    assert_eq!(without.meta().joint, None);
+    let mut rng = seeded_rng();
+    let (mut lifted, mut n) = (0, 0);
+    for _ in 0..400 {
+        let id = BrickId(rng.gen_range(0..s.grid.len() as u32));
+        let d = random_dir(&mut rng);
+        let a = with.opacity(id, d, &anchor, PofMode::Conservative);
+        let b = without.opacity(id, d, &anchor, PofMode::Conservative);
+        assert!(
+            a >= b,
+            "brick {id:?}: joint lookup {a} below Eq. 3 alone {b}"
+        );
+        n += 1;
+        lifted += usize::from(a > b + 1e-4);
+    }
+    eprintln!("joint POF lifted {lifted} of {n} lookups at the anchor weights");
+    assert!(
+        lifted * 10 > n,
+        "the joint POF lifted only {lifted} of {n} lookups"
+    );
+    // Weights below, along and above the anchor, and lopsided ones (c < 1).
+    let (cases, _) = check_conservative(&s, &with, 80, &mut rng, &|r| match r.gen_range(0..3) {
+        0 => {
+            let c = r.gen_range(0.2..3.0);
+            anchor.iter().map(|a| a * c).collect()
+        }
+        1 => vec![r.gen_range(0.0..0.5), r.gen_range(1.0..4.0)],
+        _ => vec![r.gen_range(0.0..3.0), r.gen_range(0.0..3.0)],
+    });
+    assert!(cases > 30);
+    // The file keeps the anchor.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("joint.pof");
+    with.save(&path).unwrap();
+    let back = PofTable::load(&path, &s.volume, &s.grid, &s.tf).unwrap();
+    assert_eq!(back.meta().joint, with.meta().joint);
+    let d = random_dir(&mut rng);
+    for id in s.grid.ids() {
+        assert_eq!(
+            back.opacity(id, d, &[0.7, 2.0], PofMode::Conservative),
+            with.opacity(id, d, &[0.7, 2.0], PofMode::Conservative)
+        );
+    }
 }

@@ -307,6 +307,27 @@ impl SampledTf {
         }
     }
 
+    /// A one-basis table of the family's extinction at `weights`, `Σ kᵢ τᵢ` bin by bin (the
+    /// "basis" of the joint POF). Summed in basis order, as the classifier sums it.
+    #[must_use]
+    pub fn joint(&self, weights: &[f32]) -> SampledTf {
+        let mut sum = vec![0f32; TF_BINS];
+        for (t, k) in self.tau.iter().zip(weights) {
+            if *k > 0.0 {
+                for (s, x) in sum.iter_mut().zip(t) {
+                    *s += k * x;
+                }
+            }
+        }
+        SampledTf {
+            lo: self.lo,
+            scale: self.scale,
+            tau: vec![sum],
+            color: self.color.clone(),
+            names: vec!["joint".to_owned()],
+        }
+    }
+
     /// Number of bases.
     #[must_use]
     pub fn basis_count(&self) -> usize {
