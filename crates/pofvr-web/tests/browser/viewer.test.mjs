@@ -210,7 +210,9 @@ test('benchmark: slider change to new frame at 512², with and without culling',
   const url = await startServer(volume, extra);
   const { page } = await openViewer(url);
   const report = { volume, args: extra, size: 512, reps, browser: chromiumPath, modes: {} };
-  for (const mode of ['none', 'exact']) {
+  // With a POF file among the serve flags, POF culling is timed too.
+  const modes = extra.includes('--pof') ? ['none', 'pof', 'exact'] : ['none', 'exact'];
+  for (const mode of modes) {
     let seq = (await frameNow(page)).seq;
     await page.selectOption('#cull', mode);
     await nextFullFrame(page, seq);
