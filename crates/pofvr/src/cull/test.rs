@@ -195,3 +195,41 @@ fn frame_is_identical_for_any_rank_count_and_curve() {
         }
     }
 }
+
+#[test]
+fn each_row_of_a_core_footprint_is_one_run() {
+    // The POF composite fills each row between the first and last core pixel; that is
+    // exact only because a ray's length inside a box is concave in the pixel position.
+    let j = job(40, &[1.0, 1.0]);
+    for (az, el) in [(0.0, 0.0), (37.0, -25.0), (200.0, 60.0), (91.0, 3.0)] {
+        let c = cam(&j, az, el, Projection::Orthographic);
+        let frame = c.frame();
+        let spans = PixelSpans::new(&c, &frame, &j.volume);
+        let fb = FrameBricks::new(&j.volume, &j.grid, &j.sampled, &j.tf.weights, &c);
+        let mut runs = 0;
+        for id in j.grid.ids() {
+            let Some(rect) = fb.footprints[id.index()] else {
+                continue;
+            };
+            let ibox = j.grid.index_box(id);
+            for core in [2.0f32, 4.0, 6.0] {
+                for y in rect.y0..rect.y1 {
+                    let flags: Vec<bool> = (rect.x0..rect.x1)
+                        .map(|x| spans.in_core(x, y, &ibox, core))
+                        .collect();
+                    let starts = flags
+                        .iter()
+                        .enumerate()
+                        .filter(|(i, f)| **f && (*i == 0 || !flags[i - 1]))
+                        .count();
+                    assert!(
+                        starts <= 1,
+                        "view {az},{el} brick {id:?} row {y}: {flags:?}"
+                    );
+                    runs += starts;
+                }
+            }
+        }
+        assert!(runs > 100, "view {az},{el}: only {runs} core runs");
+    }
+}
