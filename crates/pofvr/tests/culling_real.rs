@@ -47,7 +47,7 @@ pub fn assert_conservative(reference: &Image, culled: &Image, threshold: f32, wh
     );
 }
 
-const CASES: [(&str, &str); 6] = [
+const CASES: [(&str, &str); 7] = [
     ("neghip/neghip.nhdr", "sim-isobands.json"),
     ("ironprot/ironprot.nhdr", "sim-isobands.json"),
     ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
@@ -60,6 +60,7 @@ const CASES: [(&str, &str); 6] = [
         "ct-chest-skin-bone.json",
     ),
     ("ch2better_mri/ch2better_mri.nhdr", "mri-brain.json"),
+    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain-opaque.json"),
 ];
 
 #[test]
