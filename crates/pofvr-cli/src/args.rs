@@ -258,7 +258,8 @@ pub(crate) struct BenchCullArgs {
     /// Volume (default: the largest catalogued real volume when ../shared/data exists,
     /// otherwise the 256³ head phantom).
     pub(crate) volume: Option<String>,
-    /// Transfer-function family (default: the phantom's, or tfs/mri-brain.json).
+    /// Transfer-function family (default: the phantom's, or the occluding
+    /// tfs/mri-brain-opaque.json with the catalogue's MRI).
     #[arg(long, value_name = "TF.json")]
     pub(crate) tf: Option<PathBuf>,
     /// Precomputed POFs for the pof and pof-set modes (built on the fly when absent).

@@ -110,11 +110,12 @@ pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
     Ok(())
 }
 
-/// The largest real volume of the catalogue and its family, when the catalogue is here.
+/// The largest real volume of the catalogue and an occluding family for it (culling is
+/// for occluding families), when the catalogue is here.
 fn default_real_volume() -> Option<(String, PathBuf)> {
     let data = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../../shared/data/ch2better_mri/ch2better_mri.nhdr");
-    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/mri-brain.json");
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/mri-brain-opaque.json");
     (data.exists() && tf.exists()).then(|| (data.display().to_string(), tf))
 }
 
