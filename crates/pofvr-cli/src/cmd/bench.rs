@@ -24,6 +24,13 @@ struct RenderCase {
     median_ms: f64,
     samples: u64,
     samples_per_second_per_core: f64,
+    /// The sample loop measured: "avx2" (eight samples at a time) or "sse2".
+    simd: &'static str,
+    /// The same frame with the one-sample SSE2 loop (reps interleaved with the above), when
+    /// the loop measured is another.
+    one_sample_loop_ms: Option<f64>,
+    /// `one_sample_loop_ms / median_ms`.
+    speedup_over_one_sample_loop: Option<f64>,
 }
 
 pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
@@ -62,17 +69,30 @@ pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
                 let cls = job.sampled.classify(&job.tf.weights, settings.step);
                 let cam = Camera::orbit(&job.volume, az, el, w, h, Projection::Orthographic);
                 let caster = RayCaster::new(&job.volume, &cls, settings);
-                let mut times = Vec::new();
+                let one = RayCaster::new(&job.volume, &cls, settings).with_avx2(false);
+                let compare = caster.simd() != one.simd();
+                let (mut times, mut one_times) = (Vec::new(), Vec::new());
                 let mut samples = 0;
                 for _ in 0..a.reps.max(1) {
                     let t = Instant::now();
                     let (_, st) = caster.render(&cam);
                     times.push(t.elapsed().as_secs_f64());
                     samples = st.samples;
+                    if compare {
+                        // Interleaved, so that both loops see the same machine.
+                        let t = Instant::now();
+                        let (_, st1) = one.render(&cam);
+                        one_times.push(t.elapsed().as_secs_f64());
+                        anyhow::ensure!(st1 == st, "the sample loops disagree on {name}");
+                    }
                     pb.inc(1);
                 }
-                times.sort_by(f64::total_cmp);
-                let med = times[times.len() / 2];
+                let median = |mut v: Vec<f64>| {
+                    v.sort_by(f64::total_cmp);
+                    v.get(v.len() / 2).copied()
+                };
+                let med = median(times).unwrap_or(f64::NAN);
+                let one_med = median(one_times);
                 #[allow(clippy::cast_precision_loss)]
                 let per_core = samples as f64 / med / threads as f64;
                 cases.push(RenderCase {
@@ -82,26 +102,32 @@ pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
                     median_ms: med * 1e3,
                     samples,
                     samples_per_second_per_core: per_core,
+                    simd: caster.simd(),
+                    one_sample_loop_ms: one_med.map(|m| m * 1e3),
+                    speedup_over_one_sample_loop: one_med.map(|m| m / med),
                 });
             }
         }
     }
     pb.finish_and_clear();
     println!(
-        "{:<40} {:<13} {:>4} {:>10} {:>12} {:>16}",
-        "volume", "view", "ert", "ms", "Msamples", "Msamples/s/core"
+        "{:<40} {:<13} {:>4} {:>10} {:>12} {:>16} {:>6} {:>12}",
+        "volume", "view", "ert", "ms", "Msamples", "Msamples/s/core", "loop", "vs 1-sample"
     );
     for c in &cases {
         #[allow(clippy::cast_precision_loss)]
         let ms = c.samples as f64 / 1e6;
         println!(
-            "{:<40} {:<13} {:>4} {:>10.1} {:>12.2} {:>16.1}",
+            "{:<40} {:<13} {:>4} {:>10.1} {:>12.2} {:>16.1} {:>6} {:>12}",
             c.volume,
             c.view,
             if c.early_termination { "on" } else { "off" },
             c.median_ms,
             ms,
-            c.samples_per_second_per_core / 1e6
+            c.samples_per_second_per_core / 1e6,
+            c.simd,
+            c.speedup_over_one_sample_loop
+                .map_or_else(|| "-".to_owned(), |r| format!("{r:.2}x"))
         );
     }
     let report = serde_json::json!({ "threads": threads, "image": [w, h], "cases": cases });

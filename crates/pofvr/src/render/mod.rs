@@ -1,5 +1,7 @@
 //! Stage 5: cameras, transfer functions and the ray caster.
 
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 pub mod camera;
 pub mod families;
 pub mod image;

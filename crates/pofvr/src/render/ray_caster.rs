@@ -113,7 +113,11 @@ pub fn first_sample(t: f32, step: f32) -> i32 {
     if t <= 0.0 {
         return 0;
     }
-    let mut k = (t / step).ceil().min(i32::MAX as f32 - 2.0) as i32;
+    // A ceiling by hand: `f32::ceil` is a libm call on the x86_64 baseline (no SSE4.1),
+    // once per box and ray. The loops below settle the exact boundary either way.
+    let q = (t / step).min(i32::MAX as f32 - 2.0);
+    let mut k = q as i32;
+    k += i32::from((k as f32) < q);
     // The division rounds; settle on the exact boundary under the multiplication we sample with.
     while k > 0 && (k - 1) as f32 * step >= t {
         k -= 1;
@@ -140,15 +144,15 @@ pub fn sample_range(span: (f32, f32), step: f32) -> (i32, i32) {
 /// those of the whole volume, as long as the position stays inside the copy.
 #[derive(Clone, Copy)]
 pub(crate) struct Trilinear<'v, T> {
-    v: &'v [T],
+    pub(super) v: &'v [T],
     /// The whole volume's last index per axis (the clamp).
-    max: [f32; 3],
+    pub(super) max: [f32; 3],
     /// Index of voxel `v[0]` in the volume.
-    origin: [f32; 3],
+    pub(super) origin: [f32; 3],
     /// Last cell of the copy per axis.
-    last_cell: [usize; 3],
-    stride: [usize; 3],
-    step: [usize; 3],
+    pub(super) last_cell: [usize; 3],
+    pub(super) stride: [usize; 3],
+    pub(super) step: [usize; 3],
 }
 
 impl<'v, T: Voxel> Trilinear<'v, T> {
@@ -216,9 +220,19 @@ impl<'v, T: Voxel> Trilinear<'v, T> {
     }
 }
 
-/// Voxel types whose 8 cell corners the SIMD sample loop gathers.
-pub(crate) trait Gather: Voxel {
-    /// True when [`Gather::corners`] has a faster form for a unit x step (`sx == 1`).
+/// Voxel types whose 8 cell corners the SIMD sample loops gather.
+#[cfg(target_arch = "x86_64")]
+pub(crate) trait Gather: super::avx2::Gather8 + GatherOne {}
+#[cfg(target_arch = "x86_64")]
+impl<T: super::avx2::Gather8 + GatherOne> Gather for T {}
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) trait Gather: GatherOne {}
+#[cfg(not(target_arch = "x86_64"))]
+impl<T: GatherOne> Gather for T {}
+
+/// Voxel types whose 8 cell corners the one-sample SIMD loop gathers.
+pub(crate) trait GatherOne: Voxel {
+    /// True when [`GatherOne::corners`] has a faster form for a unit x step (`sx == 1`).
     const PAIRS: bool = false;
 
     /// Corners `[c000, c001, c010, c011]` (low x) and `[c100, c101, c110, c111]` (high x) of
@@ -237,7 +251,7 @@ pub(crate) trait Gather: Voxel {
 #[cfg(target_arch = "x86_64")]
 type X86F32x4 = std::arch::x86_64::__m128;
 
-/// [`Gather::corners`] with one scalar load and conversion per corner.
+/// [`GatherOne::corners`] with one scalar load and conversion per corner.
 ///
 /// # Safety
 /// `base + sx + sy + sz < v.len()`.
@@ -266,11 +280,11 @@ unsafe fn corners_generic<T: Voxel>(
     }
 }
 
-impl Gather for u16 {}
-impl Gather for i16 {}
-impl Gather for f32 {}
+impl GatherOne for u16 {}
+impl GatherOne for i16 {}
+impl GatherOne for f32 {}
 
-impl Gather for u8 {
+impl GatherOne for u8 {
     const PAIRS: bool = true;
 
     #[cfg(target_arch = "x86_64")]
@@ -306,6 +320,15 @@ pub struct RayCaster<'a> {
     volume: &'a Volume,
     cls: &'a Classifier,
     settings: RenderSettings,
+    /// Whether the eight-sample AVX2 loop runs (see `avx2::available`).
+    avx2: bool,
+}
+
+fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return super::avx2::available();
+    #[cfg(not(target_arch = "x86_64"))]
+    false
 }
 
 /// Rows per parallel work item of a full-frame render.
@@ -322,6 +345,25 @@ impl<'a> RayCaster<'a> {
             volume,
             cls,
             settings,
+            avx2: avx2_available(),
+        }
+    }
+
+    /// The same caster with the AVX2 loop on or off (on only where the CPU has it): every
+    /// loop gives the same image, bit for bit; this is for comparing them.
+    #[must_use]
+    pub fn with_avx2(mut self, on: bool) -> Self {
+        self.avx2 = on && avx2_available();
+        self
+    }
+
+    /// The sample loop this caster runs: "avx2", "sse2" or "scalar" (shading).
+    #[must_use]
+    pub fn simd(&self) -> &'static str {
+        match (self.settings.shade, self.avx2, cfg!(target_arch = "x86_64")) {
+            (false, true, _) => "avx2",
+            (false, false, true) => "sse2",
+            _ => "scalar",
         }
     }
 
@@ -493,6 +535,40 @@ impl<'a> RayCaster<'a> {
         range: (i32, i32),
         acc: &mut [f32; 4],
     ) -> u64 {
+        if self.avx2 && super::avx2::fits(tri) {
+            let mut a = super::avx2::load(acc);
+            // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked.
+            let (n, rest) = unsafe {
+                super::avx2::march(
+                    tri,
+                    self.cls.view(),
+                    self.settings.step,
+                    self.settings.ert,
+                    ray,
+                    range,
+                    &mut a,
+                )
+            };
+            super::avx2::store(&a, acc);
+            return match rest {
+                None => n,
+                // The last cells of the data: the one-sample loop finishes the ray.
+                Some(k) => n + self.march_sse_one(tri, ray, (k, range.1), acc),
+            };
+        }
+        self.march_sse_one(tri, ray, range, acc)
+    }
+
+    /// [`RayCaster::march_sse`] one sample at a time.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn march_sse_one<T: Gather>(
+        &self,
+        tri: &Trilinear<'_, T>,
+        ray: &IndexRay,
+        range: (i32, i32),
+        acc: &mut [f32; 4],
+    ) -> u64 {
         // Decided once per ray rather than per sample.
         if T::PAIRS && tri.step[0] == 1 {
             self.march_sse_with::<T, true>(tri, ray, range, acc)
@@ -501,7 +577,7 @@ impl<'a> RayCaster<'a> {
         }
     }
 
-    /// [`RayCaster::march_sse`] with the corner gather fixed: [`Gather::corners`] when
+    /// [`RayCaster::march_sse`] with the corner gather fixed: [`GatherOne::corners`] when
     /// `PAIRS` (then `T::PAIRS` and a unit x step), [`corners_generic`] otherwise.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]

@@ -283,8 +283,11 @@ fn random_volume(rng: &mut StdRng, dtype: usize) -> Volume {
     let dims: [usize; 3] = std::array::from_fn(|_| {
         if rng.gen_bool(0.1) {
             1
-        } else {
+        } else if rng.gen_bool(0.8) {
             rng.gen_range(2..=13)
+        } else {
+            // Long enough for whole runs of eight samples well inside the data.
+            rng.gen_range(14..=40)
         }
     });
     let spacing: [f32; 3] = std::array::from_fn(|_| rng.gen_range(0.4..2.0));
@@ -303,7 +306,7 @@ fn random_volume(rng: &mut StdRng, dtype: usize) -> Volume {
 #[test]
 fn fast_march_equals_scalar_reference_bit_for_bit() {
     let mut rng = StdRng::seed_from_u64(0x5eed);
-    for case in 0..48 {
+    for case in 0..96 {
         let vol = random_volume(&mut rng, case % 4);
         let (min, max) = with_voxels!(vol.data(), v => v.iter().fold(
             (f32::INFINITY, f32::NEG_INFINITY),
@@ -333,6 +336,9 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
         };
         let cls = s.classify(&[rng.gen_range(0.5..3.0)], settings.step);
         let caster = RayCaster::new(&vol, &cls, settings);
+        // The one-sample SSE2 loop as well where the CPU runs the AVX2 one by default.
+        let one = RayCaster::new(&vol, &cls, settings).with_avx2(false);
+        assert_ne!(one.simd(), "avx2");
         let vbox = caster.volume_box();
         let dims = vol.dims();
         with_voxels!(vol.data(), v => {
@@ -363,13 +369,15 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
                     Some(span) if rng.gen_bool(0.7) => ray_caster::sample_range(span, settings.step),
                     _ => {
                         let k0 = rng.gen_range(0..40);
-                        (k0, k0 + rng.gen_range(0..60))
+                        (k0, k0 + rng.gen_range(0..90))
                     }
                 };
                 let start = if rng.gen_bool(0.5) { [0.0; 4] } else { [0.1, 0.05, 0.2, 0.3] };
-                let (mut fast, mut slow) = (start, start);
+                let (mut fast, mut slow, mut single) = (start, start, start);
                 let nf = caster.march(&tri, &ray, range, &mut fast);
                 let ns = march_reference(&tri, &cls, settings, &ray, range, &mut slow);
+                let n1 = one.march(&tri, &ray, range, &mut single);
+                assert_eq!((n1, single.map(f32::to_bits)), (ns, slow.map(f32::to_bits)));
                 assert_eq!(nf, ns, "case {case}: {ray:?} {range:?}");
                 assert_eq!(
                     fast.map(f32::to_bits),

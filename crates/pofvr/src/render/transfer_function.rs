@@ -15,7 +15,7 @@ use crate::brick::ValueRange;
 pub const TF_BINS: usize = 4096;
 
 #[allow(clippy::cast_precision_loss)]
-const BIN_MAX: f32 = (TF_BINS - 1) as f32;
+pub(crate) const BIN_MAX: f32 = (TF_BINS - 1) as f32;
 
 /// Alpha of a unit step is capped here so that τ stays finite.
 const ALPHA_CAP: f32 = 1.0 - 1e-6;
@@ -440,10 +440,10 @@ impl Classifier {
 /// A [`Classifier`]'s lookup: the one definition of [`Classifier::sample`].
 #[derive(Clone, Copy)]
 pub(crate) struct ClassifierView<'c> {
-    lo: f32,
-    scale: f32,
+    pub(crate) lo: f32,
+    pub(crate) scale: f32,
     /// Always TF_BINS entries.
-    rgba: &'c [[f32; 4]],
+    pub(crate) rgba: &'c [[f32; 4]],
 }
 
 impl ClassifierView<'_> {

@@ -1,0 +1,369 @@
+//! The sample loop on AVX2: eight samples of one ray at a time.
+//!
+//! A ray's samples are independent of each other until they are composited, so the
+//! positions, cell indices, corner gathers, trilinear weights, classification bins and
+//! opacities of eight consecutive samples are computed lane-wise, with exactly the float
+//! operations of the scalar definition (`RayCaster::march_scalar`: no fused multiply–adds),
+//! and only the composite, which carries the accumulator from sample to sample, runs one
+//! sample at a time. Eight samples that all classify as transparent leave the accumulator
+//! untouched and are skipped as a whole: that is most of the samples in the empty space
+//! around real data.
+//!
+//! The eight gathers per sample are independent loads that the core keeps in flight
+//! together, where the one-sample loop issues them a sample at a time.
+
+use std::arch::x86_64::{
+    __m128, __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_si256,
+    _mm256_castsi256_ps, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32,
+    _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps,
+    _mm256_mul_ps, _mm256_mullo_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32,
+    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srai_epi32,
+    _mm256_srli_epi32, _mm256_storeu_si256, _mm256_sub_ps, _mm_add_ps, _mm_loadu_ps, _mm_mul_ps,
+    _mm_set1_ps, _mm_storeu_ps,
+};
+
+use super::ray_caster::{IndexRay, Trilinear};
+use super::transfer_function::{ClassifierView, BIN_MAX};
+use crate::volume::Voxel;
+
+/// Whether this CPU runs the AVX2 loop (checked once; `POFVR_SIMD=sse2` turns it off, for
+/// comparisons).
+pub(crate) fn available() -> bool {
+    static AVAILABLE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *AVAILABLE.get_or_init(|| {
+        std::env::var("POFVR_SIMD").map_or(true, |s| !s.eq_ignore_ascii_case("sse2"))
+            && std::arch::is_x86_feature_detected!("avx2")
+    })
+}
+
+/// Voxel types whose eight cell corners the AVX2 loop gathers for eight samples at once.
+pub(crate) trait Gather8: Voxel {
+    /// True when [`Gather8::corners8`] reads each x pair as one 32-bit load, which needs a
+    /// unit x step.
+    const UNIT_X: bool;
+    /// Elements past a cell's last corner that [`Gather8::corners8`] may read.
+    const OVERREAD: usize;
+
+    /// Corners `[c000, c100, c010, c110, c001, c101, c011, c111]` (digits: x, y, z) of the
+    /// cells at `base`, lane by lane, converted to `f32`.
+    ///
+    /// # Safety
+    /// AVX2 is available; for every lane `base + sx + sy + sz + OVERREAD < v.len()`, and
+    /// `sx == 1` where `UNIT_X` is true.
+    unsafe fn corners8(v: &[Self], base: __m256i, step: [usize; 3]) -> [__m256; 8];
+}
+
+/// The four 32-bit words at `base`, `base + sy`, `base + sz`, `base + sy + sz` (in elements
+/// of `SCALE` bytes), lane by lane.
+///
+/// # Safety
+/// AVX2; every word lies inside `v`'s allocation.
+#[inline(always)]
+unsafe fn words<T, const SCALE: i32>(v: &[T], base: __m256i, sy: usize, sz: usize) -> [__m256i; 4] {
+    let p = v.as_ptr().cast::<i32>();
+    #[allow(clippy::cast_possible_truncation, clippy::cast_possible_wrap)]
+    let (sy, sz) = (sy as i32, sz as i32);
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        let at = |off: i32| {
+            _mm256_i32gather_epi32::<SCALE>(p, _mm256_add_epi32(base, _mm256_set1_epi32(off)))
+        };
+        [at(0), at(sy), at(sz), at(sy + sz)]
+    }
+}
+
+/// As [`words`] with one scalar load per word.
+#[inline(always)]
+unsafe fn words_scalar<T>(v: &[T], base: __m256i, sy: usize, sz: usize) -> [__m256i; 4] {
+    let mut b = [0u32; 8];
+    unsafe {
+        _mm256_storeu_si256(b.as_mut_ptr().cast(), base);
+        let p = v.as_ptr();
+        let at = |i: u32, off: usize| p.add(i as usize + off).cast::<i32>().read_unaligned();
+        let w = |off: usize| {
+            std::arch::x86_64::_mm256_setr_epi32(
+                at(b[0], off),
+                at(b[1], off),
+                at(b[2], off),
+                at(b[3], off),
+                at(b[4], off),
+                at(b[5], off),
+                at(b[6], off),
+                at(b[7], off),
+            )
+        };
+        [w(0), w(sy), w(sz), w(sy + sz)]
+    }
+}
+
+impl Gather8 for u8 {
+    const UNIT_X: bool = true;
+    const OVERREAD: usize = 2;
+
+    #[inline(always)]
+    unsafe fn corners8(v: &[u8], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
+        // SAFETY: each 32-bit word starts at a corner and ends OVERREAD bytes past its x
+        // neighbour (caller).
+        unsafe {
+            let [w00, w10, w01, w11] = words_scalar::<u8>(v, base, sy, sz);
+            let m = _mm256_set1_epi32(0xFF);
+            let lo = |w| _mm256_cvtepi32_ps(_mm256_and_si256(w, m));
+            let hi = |w| _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32::<8>(w), m));
+            [
+                lo(w00),
+                hi(w00),
+                lo(w10),
+                hi(w10),
+                lo(w01),
+                hi(w01),
+                lo(w11),
+                hi(w11),
+            ]
+        }
+    }
+}
+
+impl Gather8 for u16 {
+    const UNIT_X: bool = true;
+    const OVERREAD: usize = 0;
+
+    #[inline(always)]
+    unsafe fn corners8(v: &[u16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
+        // SAFETY: each 32-bit word is a corner and its x neighbour (caller).
+        unsafe {
+            let [w00, w10, w01, w11] = words::<u16, 2>(v, base, sy, sz);
+            let m = _mm256_set1_epi32(0xFFFF);
+            let lo = |w| _mm256_cvtepi32_ps(_mm256_and_si256(w, m));
+            let hi = |w| _mm256_cvtepi32_ps(_mm256_srli_epi32::<16>(w));
+            [
+                lo(w00),
+                hi(w00),
+                lo(w10),
+                hi(w10),
+                lo(w01),
+                hi(w01),
+                lo(w11),
+                hi(w11),
+            ]
+        }
+    }
+}
+
+impl Gather8 for i16 {
+    const UNIT_X: bool = true;
+    const OVERREAD: usize = 0;
+
+    #[inline(always)]
+    unsafe fn corners8(v: &[i16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
+        // SAFETY: each 32-bit word is a corner and its x neighbour (caller).
+        unsafe {
+            let [w00, w10, w01, w11] = words::<i16, 2>(v, base, sy, sz);
+            // Arithmetic shifts sign-extend each half.
+            let lo = |w| _mm256_cvtepi32_ps(_mm256_srai_epi32::<16>(_mm256_slli_epi32::<16>(w)));
+            let hi = |w| _mm256_cvtepi32_ps(_mm256_srai_epi32::<16>(w));
+            [
+                lo(w00),
+                hi(w00),
+                lo(w10),
+                hi(w10),
+                lo(w01),
+                hi(w01),
+                lo(w11),
+                hi(w11),
+            ]
+        }
+    }
+}
+
+impl Gather8 for f32 {
+    const UNIT_X: bool = false;
+    const OVERREAD: usize = 0;
+
+    #[inline(always)]
+    unsafe fn corners8(v: &[f32], base: __m256i, [sx, sy, sz]: [usize; 3]) -> [__m256; 8] {
+        let p = v.as_ptr();
+        // SAFETY: every offset is a corner of the cell (caller).
+        unsafe {
+            let at = |off: usize| {
+                #[allow(clippy::cast_possible_truncation, clippy::cast_possible_wrap)]
+                let off = _mm256_set1_epi32(off as i32);
+                _mm256_i32gather_ps::<4>(p, _mm256_add_epi32(base, off))
+            };
+            [
+                at(0),
+                at(sx),
+                at(sy),
+                at(sy + sx),
+                at(sz),
+                at(sz + sx),
+                at(sz + sy),
+                at(sz + sy + sx),
+            ]
+        }
+    }
+}
+
+/// Whether [`march`] can take `tri`: 32-bit lane indices, and the unit x step the type's
+/// gather needs.
+pub(crate) fn fits<T: Gather8>(tri: &Trilinear<'_, T>) -> bool {
+    tri.v.len() < i32::MAX as usize && (!T::UNIT_X || tri.step[0] == 1)
+}
+
+/// The loop's state at a sample index: premultiplied RGBA so far (`a3` is its alpha, kept
+/// apart so that the termination test reads a scalar register).
+pub(crate) struct Acc {
+    pub(crate) a: __m128,
+    pub(crate) a3: f32,
+}
+
+/// Composites samples `k0..k1` of `ray` into `acc` as `RayCaster::march_scalar` does, bit
+/// for bit; returns the samples taken and, when a cell near the end of the data would have
+/// made a gather read past it, the sample index to go on from with another path.
+///
+/// # Safety
+/// AVX2 is available and [`fits`] holds.
+#[target_feature(enable = "avx2")]
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_possible_wrap,
+    clippy::cast_precision_loss,
+    clippy::cast_sign_loss,
+    clippy::too_many_arguments
+)]
+pub(crate) unsafe fn march<T: Gather8>(
+    tri: &Trilinear<'_, T>,
+    cls: ClassifierView<'_>,
+    step: f32,
+    ert: f32,
+    ray: &IndexRay,
+    (k0, k1): (i32, i32),
+    acc: &mut Acc,
+) -> (u64, Option<i32>) {
+    debug_assert!(fits(tri));
+    let v = tri.v;
+    let [_, s1, s2] = tri.stride;
+    let [sx, sy, sz] = tri.step;
+    // The largest base whose reads stay inside the data; -1 when none does.
+    let limit = (v.len() as i64 - 1 - (sx + sy + sz + T::OVERREAD) as i64).max(-1) as i32;
+    let limit = _mm256_set1_epi32(limit);
+    let zero = _mm256_setzero_ps();
+    let axis = |a: usize| {
+        (
+            _mm256_set1_ps(ray.o[a]),
+            _mm256_set1_ps(ray.d[a]),
+            _mm256_set1_ps(tri.max[a]),
+            _mm256_set1_ps(tri.origin[a]),
+            // Cells are below 2^24 per axis, so the float is exact.
+            _mm256_set1_ps(tri.last_cell[a] as f32),
+        )
+    };
+    let axes = [axis(0), axis(1), axis(2)];
+    let strides = [
+        _mm256_set1_epi32(1),
+        _mm256_set1_epi32(s1 as i32),
+        _mm256_set1_epi32(s2 as i32),
+    ];
+    let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let stepv = _mm256_set1_ps(step);
+    let (lo, scale, bin_max) = (
+        _mm256_set1_ps(cls.lo),
+        _mm256_set1_ps(cls.scale),
+        _mm256_set1_ps(BIN_MAX),
+    );
+    let rgba = cls.rgba;
+    let mut bins = [0i32; 8];
+    let mut n = 0u64;
+    let mut k = k0;
+    while k < k1 {
+        if acc.a3 >= ert {
+            break;
+        }
+        // t = k·step and p = o + t·d, lane-wise as the scalar expression.
+        let t = _mm256_mul_ps(
+            _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(k), lanes)),
+            stepv,
+        );
+        let mut base = _mm256_setzero_si256();
+        let mut f = [zero; 3];
+        for (a, &(o, d, max, origin, last)) in axes.iter().enumerate() {
+            let p = _mm256_add_ps(o, _mm256_mul_ps(t, d));
+            let x = _mm256_sub_ps(_mm256_min_ps(_mm256_max_ps(p, zero), max), origin);
+            let i = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_max_ps(x, zero), last));
+            f[a] = _mm256_sub_ps(x, _mm256_cvtepi32_ps(i));
+            base = _mm256_add_epi32(base, _mm256_mullo_epi32(i, strides[a]));
+        }
+        if _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(base, limit))) != 0 {
+            return (n, Some(k));
+        }
+        // SAFETY: every lane's position is clamped into the data, so its cell's corners are
+        // inside `v`, and `limit` keeps the overread inside too.
+        let [c000, c100, c010, c110, c001, c101, c011, c111] =
+            unsafe { T::corners8(v, base, tri.step) };
+        let lerp = |a: __m256, b: __m256, w: __m256| {
+            _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w))
+        };
+        let c00 = lerp(c000, c100, f[0]);
+        let c10 = lerp(c010, c110, f[0]);
+        let c01 = lerp(c001, c101, f[0]);
+        let c11 = lerp(c011, c111, f[0]);
+        let c0 = lerp(c00, c10, f[1]);
+        let c1 = lerp(c01, c11, f[1]);
+        let value = lerp(c0, c1, f[2]);
+        // As `ClassifierView::sample`: `maxps` returns its second operand (0) for NaN.
+        let x = _mm256_min_ps(
+            _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(value, lo), scale), zero),
+            bin_max,
+        );
+        let b = _mm256_cvttps_epi32(x);
+        let count = (k1 - k).min(8);
+        // SAFETY: `bins` holds eight i32.
+        unsafe { _mm256_storeu_si256(bins.as_mut_ptr().cast(), b) };
+        let live = &bins[..count as usize];
+        // Opacities are ≥ 0, so their bits are all zero exactly when they are 0.
+        // SAFETY: bins are in [0, TF_BINS) and the table holds TF_BINS entries.
+        let opaque = live.iter().fold(0u32, |o, &bin| {
+            o | unsafe { rgba.get_unchecked(bin as u32 as usize) }[3].to_bits()
+        });
+        if opaque == 0 {
+            n += count as u64;
+            k += 8;
+            continue;
+        }
+        for &bin in live {
+            if acc.a3 >= ert {
+                return (n, None);
+            }
+            n += 1;
+            // SAFETY: as for the gather above.
+            let s = unsafe { rgba.get_unchecked(bin as u32 as usize) };
+            if s[3] == 0.0 {
+                continue;
+            }
+            let w = 1.0 - acc.a3;
+            // SAFETY: `s` holds four floats.
+            acc.a = _mm_add_ps(
+                acc.a,
+                _mm_mul_ps(_mm_set1_ps(w), unsafe { _mm_loadu_ps(s.as_ptr()) }),
+            );
+            acc.a3 += w * s[3];
+        }
+        k += 8;
+    }
+    (n, None)
+}
+
+/// Stores the accumulator back.
+pub(crate) fn store(acc: &Acc, out: &mut [f32; 4]) {
+    // SAFETY: SSE is part of the x86_64 baseline; `out` holds four floats.
+    unsafe { _mm_storeu_ps(out.as_mut_ptr(), acc.a) };
+    debug_assert_eq!(out[3].to_bits(), acc.a3.to_bits());
+}
+
+/// Loads the accumulator.
+pub(crate) fn load(acc: &[f32; 4]) -> Acc {
+    // SAFETY: SSE is part of the x86_64 baseline; `acc` holds four floats.
+    Acc {
+        a: unsafe { _mm_loadu_ps(acc.as_ptr()) },
+        a3: acc[3],
+    }
+}
