@@ -68,6 +68,25 @@ pub enum JobError {
 }
 
 impl RenderJob {
+    /// Which rank renders which brick: the bricks the family can show (non-empty for some
+    /// basis) dealt round-robin along `curve`, the rest dealt apart
+    /// ([`BrickAssignment::from_order_occupied`]). It depends on the family's bases and the
+    /// data only, not on the weights or the view, so a distributed rank's bricks stay put.
+    ///
+    /// # Errors
+    /// [`DistributeError`] for a rank count of zero or one past `u32::MAX`.
+    pub fn assignment(
+        &self,
+        curve: Curve,
+        ranks: usize,
+    ) -> Result<BrickAssignment, DistributeError> {
+        let order = crate::distribute::SfcOrder::new(self.grid.counts(), curve)?;
+        let every = vec![1.0; self.sampled.basis_count()];
+        BrickAssignment::from_order_occupied(&order, ranks, &|id| {
+            !self.sampled.is_empty(self.grid.range(id), &every)
+        })
+    }
+
     /// Bricks the volume and tabulates the family over its value range.
     ///
     /// # Errors
@@ -392,7 +411,7 @@ fn rank_frame(
     let cls = job.sampled.classify(weights, job.settings.step);
     let caster = RayCaster::new(&job.volume, &cls, job.settings);
     let bricks = FrameBricks::new(&job.volume, &job.grid, &job.sampled, weights, camera);
-    let assignment = BrickAssignment::new(job.grid.counts(), opts.curve, comm.size())?;
+    let assignment = job.assignment(opts.curve, comm.size())?;
 
     // Cull for this rank's tile.
     let t = Instant::now();

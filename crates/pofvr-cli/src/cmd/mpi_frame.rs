@@ -104,7 +104,7 @@ impl Backend for Mpi<'_> {
     }
 
     fn prepare(&self, job: &mut RenderJob, curve: Curve) -> Result<()> {
-        let owners = BrickAssignment::new(job.grid.counts(), curve, self.comm.size())?;
+        let owners = job.assignment(curve, self.comm.size())?;
         let store = BrickStore::new(&job.volume, &job.grid, owners.of(self.comm.rank()));
         // From here on only `--cull exact` (the oracle renders bricks it does not own) reads
         // the mapping again.

@@ -272,3 +272,52 @@ fn a_compact_region_is_spread_evenly_over_ranks() {
         }
     }
 }
+
+#[test]
+fn occupied_bricks_are_dealt_evenly_apart_from_the_others() {
+    let mut rng = seeded_rng();
+    for _ in 0..100 {
+        let counts = random_counts(&mut rng);
+        let ranks = rng.gen_range(1..=40);
+        let order = SfcOrder::new(counts, Curve::Hilbert).unwrap();
+        // A random occupied set, with runs along the curve as real data have.
+        let p = rng.gen_range(0.0..1.0);
+        let occupied: Vec<bool> = (0..order.len()).map(|_| rng.gen_bool(p)).collect();
+        let a = BrickAssignment::from_order_occupied(&order, ranks, &|id| occupied[id.index()])
+            .unwrap();
+        let mut seen = vec![false; order.len()];
+        let mut per_rank = vec![[0usize; 2]; ranks];
+        for r in 0..ranks {
+            #[allow(clippy::cast_possible_truncation)]
+            let rank = Rank(r as u32);
+            let mine = a.of(rank);
+            // Each rank's list keeps the curve order.
+            let pos: Vec<usize> = mine
+                .iter()
+                .map(|b| order.bricks().iter().position(|x| x == b).unwrap())
+                .collect();
+            assert!(pos.windows(2).all(|w| w[0] < w[1]));
+            for b in mine {
+                assert!(
+                    !std::mem::replace(&mut seen[b.index()], true),
+                    "{b:?} dealt twice"
+                );
+                assert_eq!(a.owner(*b), Some(rank));
+                per_rank[r][usize::from(occupied[b.index()])] += 1;
+            }
+        }
+        assert!(seen.iter().all(|s| *s), "a brick was not dealt");
+        for class in 0..2 {
+            let n: Vec<usize> = per_rank.iter().map(|c| c[class]).collect();
+            let (mn, mx) = (n.iter().min().unwrap(), n.iter().max().unwrap());
+            assert!(mx - mn <= 1, "class {class} over {ranks} ranks: {n:?}");
+        }
+    }
+    // All occupied: the plain deal.
+    let order = SfcOrder::new([5, 6, 7], Curve::Z).unwrap();
+    assert_eq!(
+        BrickAssignment::from_order_occupied(&order, 7, &|_| true).unwrap(),
+        BrickAssignment::from_order(&order, 7).unwrap()
+    );
+    assert!(BrickAssignment::from_order_occupied(&order, 0, &|_| true).is_err());
+}

@@ -272,8 +272,26 @@ pub struct SampledTf {
     lo: f32,
     scale: f32,
     tau: Vec<Vec<f32>>,
+    /// Per basis, the number of non-zero bins below each bin (TF_BINS + 1 entries): a
+    /// brick's emptiness is then two lookups per basis rather than a scan of its bins, for
+    /// every brick of every frame.
+    nonzero_below: Vec<Vec<u32>>,
     color: Vec<[f32; 3]>,
     names: Vec<String>,
+}
+
+/// [`SampledTf::nonzero_below`] of each table.
+fn nonzero_below(tau: &[Vec<f32>]) -> Vec<Vec<u32>> {
+    tau.iter()
+        .map(|t| {
+            std::iter::once(0)
+                .chain(t.iter().scan(0u32, |n, x| {
+                    *n += u32::from(*x != 0.0);
+                    Some(*n)
+                }))
+                .collect()
+        })
+        .collect()
 }
 
 impl SampledTf {
@@ -286,7 +304,7 @@ impl SampledTf {
         let scale = TF_BINS as f32 / width;
         #[allow(clippy::cast_precision_loss)]
         let centre = |b: usize| lo + (b as f32 + 0.5) / scale;
-        let tau = tf
+        let tau: Vec<Vec<f32>> = tf
             .bases
             .iter()
             .map(|basis| {
@@ -301,6 +319,7 @@ impl SampledTf {
         SampledTf {
             lo,
             scale,
+            nonzero_below: nonzero_below(&tau),
             tau,
             color,
             names: tf.bases.iter().map(|b| b.name.clone()).collect(),
@@ -319,10 +338,12 @@ impl SampledTf {
                 }
             }
         }
+        let tau = vec![sum];
         SampledTf {
             lo: self.lo,
             scale: self.scale,
-            tau: vec![sum],
+            nonzero_below: nonzero_below(&tau),
+            tau,
             color: self.color.clone(),
             names: vec!["joint".to_owned()],
         }
@@ -382,11 +403,21 @@ impl SampledTf {
     #[must_use]
     pub fn is_empty(&self, r: ValueRange, weights: &[f32]) -> bool {
         let (b0, b1) = self.bin_range(r);
-        self.tau
+        let empty = self
+            .nonzero_below
             .iter()
             .zip(weights)
             .filter(|(_, k)| **k > 0.0)
-            .all(|(t, _)| t[b0..=b1].iter().all(|x| *x == 0.0))
+            .all(|(n, _)| n[b1 + 1] == n[b0]);
+        debug_assert_eq!(
+            empty,
+            self.tau
+                .iter()
+                .zip(weights)
+                .filter(|(_, k)| **k > 0.0)
+                .all(|(t, _)| t[b0..=b1].iter().all(|x| *x == 0.0))
+        );
+        empty
     }
 
     /// Per-bin premultiplied RGBA of one step of `step` units with `weights`.
