@@ -287,7 +287,7 @@ fn occupied_bricks_are_dealt_evenly_apart_from_the_others() {
             .unwrap();
         let mut seen = vec![false; order.len()];
         let mut per_rank = vec![[0usize; 2]; ranks];
-        for r in 0..ranks {
+        for (r, counts) in per_rank.iter_mut().enumerate() {
             #[allow(clippy::cast_possible_truncation)]
             let rank = Rank(r as u32);
             let mine = a.of(rank);
@@ -303,7 +303,7 @@ fn occupied_bricks_are_dealt_evenly_apart_from_the_others() {
                     "{b:?} dealt twice"
                 );
                 assert_eq!(a.owner(*b), Some(rank));
-                per_rank[r][usize::from(occupied[b.index()])] += 1;
+                counts[usize::from(occupied[b.index()])] += 1;
             }
         }
         assert!(seen.iter().all(|s| *s), "a brick was not dealt");
