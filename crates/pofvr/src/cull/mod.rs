@@ -244,7 +244,10 @@ impl Culler<'_> {
             let mut occluded = true;
             for y in rect.y0..rect.y1 {
                 let row = (y - tile.y0) as usize * tw;
-                for x in rect.x0..rect.x1 {
+                let xs = spans
+                    .row_candidates(y, &ibox, None, (rect.x0, rect.x1))
+                    .unwrap_or(rect.x0..rect.x1);
+                for x in xs {
                     if buffer[row + (x - tile.x0) as usize] < self.threshold
                         && spans.hits(x, y, &ibox)
                     {
@@ -295,10 +298,13 @@ impl Culler<'_> {
                         // Orthographic: a ray's length inside the box is concave in the pixel
                         // position, so each row of the core is one run: find its ends and
                         // fill between (`each_row_of_a_core_footprint_is_one_run`).
-                        let Some(x0) = (rect.x0..rect.x1).find(|x| in_core(*x)) else {
+                        let xs = spans
+                            .row_candidates(y, &ibox, Some(core), (rect.x0, rect.x1))
+                            .unwrap_or(rect.x0..rect.x1);
+                        let Some(x0) = xs.clone().find(|x| in_core(*x)) else {
                             continue;
                         };
-                        let x1 = (x0 + 1..rect.x1).rev().find(|x| in_core(*x)).unwrap_or(x0) + 1;
+                        let x1 = (x0 + 1..xs.end).rev().find(|x| in_core(*x)).unwrap_or(x0) + 1;
                         let run = row + (x0 - tile.x0) as usize..row + (x1 - tile.x0) as usize;
                         for b in &mut buffer[run] {
                             *b += (1.0 - *b) * alpha;
@@ -454,6 +460,84 @@ impl<'a> PixelSpans<'a> {
                 }
             }
         }
+    }
+
+    /// Orthographic views: the pixels of row `y` that may pass [`PixelSpans::hits`]
+    /// (`core` is `None`) or [`PixelSpans::in_core`] (`Some(core)`) for `b`, widened by a
+    /// pixel each side and clipped to `x0..x1`; `None` for perspective views.
+    ///
+    /// Why: along a row the near and far plane crossings of each slab are affine in x, so
+    /// both tests reduce to a handful of half-lines; the per-pixel tests then run on the
+    /// two or three candidates at each end instead of the whole footprint row. The pixel of
+    /// margin covers the rounding of this solve (far below a pixel), so the pixels the
+    /// exact tests pass are all inside the range.
+    fn row_candidates(
+        &self,
+        y: u32,
+        b: &crate::brick::IndexBox,
+        core: Option<f32>,
+        (x0, x1): (u32, u32),
+    ) -> Option<std::ops::Range<u32>> {
+        let PixelSpans::Orthographic {
+            o00, du, dv, inv_d, ..
+        } = self
+        else {
+            return None;
+        };
+        let fy = f64::from(y);
+        // The least length, and the least far crossing, the test asks for.
+        let need = core.map_or(-SPAN_SLACK, |c| f64::from(c) + SPAN_SLACK);
+        let (mut lo_x, mut hi_x) = (f64::NEG_INFINITY, f64::INFINITY);
+        // c0 + c1·x ≥ 0.
+        let mut half_line = |c0: f64, c1: f64| {
+            if c1 == 0.0 {
+                if c0 < 0.0 {
+                    hi_x = f64::NEG_INFINITY;
+                }
+            } else if c1 > 0.0 {
+                lo_x = lo_x.max(-c0 / c1);
+            } else {
+                hi_x = hi_x.min(-c0 / c1);
+            }
+        };
+        // (near intercept, far intercept, slope) of each slab's crossings.
+        let mut slabs = [(0.0, 0.0, 0.0); 3];
+        let mut n = 0;
+        for a in 0..3 {
+            let o = o00[a] + fy * dv[a];
+            let (lo, hi) = (f64::from(b.lo[a]), f64::from(b.hi[a]));
+            if inv_d[a] == 0.0 {
+                // Parallel to the slab: o(x) = o + x·du must lie inside it, by the slack
+                // outside (hits) or inside (core).
+                let e = if core.is_some() {
+                    SPAN_SLACK
+                } else {
+                    -SPAN_SLACK
+                };
+                half_line(o - (lo + e), du[a]);
+                half_line((hi - e) - o, -du[a]);
+                continue;
+            }
+            let (ta, tb) = ((lo - o) * inv_d[a], (hi - o) * inv_d[a]);
+            slabs[n] = (ta.min(tb), ta.max(tb), -du[a] * inv_d[a]);
+            n += 1;
+        }
+        for &(_, far_a, m_a) in &slabs[..n] {
+            half_line(far_a - need, m_a);
+            for &(near_b, _, m_b) in &slabs[..n] {
+                half_line(far_a - near_b - need, m_a - m_b);
+            }
+        }
+        if lo_x.is_nan() || hi_x.is_nan() {
+            // Cannot happen with finite cameras; the whole row keeps the tests exact anyway.
+            return Some(x0..x1);
+        }
+        if lo_x > hi_x {
+            return Some(x0..x0);
+        }
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        let clip = |x: f64| x.clamp(f64::from(x0), f64::from(x1)) as u32;
+        Some(clip(lo_x.floor() - 1.0)..clip(hi_x.ceil() + 2.0))
     }
 
     /// True when the pixel's ray may take a sample in `b` (conservatively).

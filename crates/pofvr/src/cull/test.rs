@@ -233,3 +233,65 @@ fn each_row_of_a_core_footprint_is_one_run() {
         assert!(runs > 100, "view {az},{el}: only {runs} core runs");
     }
 }
+
+#[test]
+fn row_candidates_hold_every_pixel_the_exact_tests_pass() {
+    // The culler only tests the candidates of a row; a pixel outside them that passes the
+    // exact test would be a brick wrongly culled or opacity wrongly left out.
+    let j = job(40, &[1.0, 1.0]);
+    let (mut tight, mut rows, mut passing) = (0usize, 0usize, 0usize);
+    for (az, el) in [
+        (0.0, 0.0),
+        (37.0, -25.0),
+        (200.0, 60.0),
+        (91.0, 3.0),
+        (90.0, 0.0),
+    ] {
+        let c = cam(&j, az, el, Projection::Orthographic);
+        let frame = c.frame();
+        let spans = PixelSpans::new(&c, &frame, &j.volume);
+        let fb = FrameBricks::new(&j.volume, &j.grid, &j.sampled, &j.tf.weights, &c);
+        for id in j.grid.ids() {
+            let Some(rect) = fb.footprints[id.index()] else {
+                continue;
+            };
+            let ibox = j.grid.index_box(id);
+            for core in [None, Some(2.0f32), Some(4.0), Some(6.0)] {
+                for y in rect.y0..rect.y1 {
+                    let xs = spans
+                        .row_candidates(y, &ibox, core, (rect.x0, rect.x1))
+                        .expect("orthographic");
+                    for x in rect.x0..rect.x1 {
+                        let pass = match core {
+                            None => spans.hits(x, y, &ibox),
+                            Some(l) => spans.in_core(x, y, &ibox, l),
+                        };
+                        passing += usize::from(pass);
+                        assert!(
+                            !pass || xs.contains(&x),
+                            "view {az},{el} brick {id:?} core {core:?} row {y}: {x} outside {xs:?}"
+                        );
+                    }
+                    // Candidates are the passing pixels and at most two more at each end.
+                    let n = (rect.x0..rect.x1)
+                        .filter(|x| match core {
+                            None => spans.hits(*x, y, &ibox),
+                            Some(l) => spans.in_core(*x, y, &ibox, l),
+                        })
+                        .count();
+                    tight += usize::from(xs.len() <= n + 4);
+                    rows += 1;
+                }
+            }
+        }
+    }
+    assert!(passing > 10_000, "only {passing} passing pixels");
+    assert!(tight * 100 >= rows * 99, "{tight} of {rows} rows tight");
+    // Perspective views have no candidates: the culler tests every pixel.
+    let c = cam(&j, 30.0, 20.0, Projection::Perspective);
+    let frame = c.frame();
+    let spans = PixelSpans::new(&c, &frame, &j.volume);
+    assert!(spans
+        .row_candidates(0, &j.grid.index_box(BrickId(0)), None, (0, 10))
+        .is_none());
+}
