@@ -16,6 +16,9 @@ use crate::render::{
 };
 use crate::volume::Volume;
 
+/// A brick assignment and the (curve, ranks) it was dealt for.
+type CachedAssignment = ((Curve, usize), std::sync::Arc<BrickAssignment>);
+
 /// Everything a frame needs that does not change with the camera: the opened volume, its
 /// bricks and the tabulated transfer-function family.
 pub struct RenderJob {
@@ -33,6 +36,9 @@ pub struct RenderJob {
     /// when a brick is here it is sampled from its copy, not from the volume. The frame is
     /// the same either way.
     pub bricks: Option<BrickStore>,
+    /// The last [`RenderJob::assignment`], by curve and rank count: every frame asks for
+    /// it, and it only changes with the bricks and bases, which a job keeps.
+    assignment_cache: std::sync::Mutex<Option<CachedAssignment>>,
 }
 
 /// Validated before the volume is scanned, so a bad flag fails fast.
@@ -79,12 +85,25 @@ impl RenderJob {
         &self,
         curve: Curve,
         ranks: usize,
-    ) -> Result<BrickAssignment, DistributeError> {
+    ) -> Result<std::sync::Arc<BrickAssignment>, DistributeError> {
+        let mut cache = self
+            .assignment_cache
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((key, a)) = cache.as_ref() {
+            if *key == (curve, ranks) {
+                return Ok(a.clone());
+            }
+        }
         let order = crate::distribute::SfcOrder::new(self.grid.counts(), curve)?;
         let every = vec![1.0; self.sampled.basis_count()];
-        BrickAssignment::from_order_occupied(&order, ranks, &|id| {
-            !self.sampled.is_empty(self.grid.range(id), &every)
-        })
+        let a = std::sync::Arc::new(BrickAssignment::from_order_occupied(
+            &order,
+            ranks,
+            &|id| !self.sampled.is_empty(self.grid.range(id), &every),
+        )?);
+        *cache = Some(((curve, ranks), a.clone()));
+        Ok(a)
     }
 
     /// Bricks the volume and tabulates the family over its value range.
@@ -129,6 +148,7 @@ impl RenderJob {
             sampled,
             settings,
             bricks: None,
+            assignment_cache: std::sync::Mutex::default(),
         })
     }
 

@@ -292,6 +292,15 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         view[1],
         rayon::current_num_threads()
     );
+    let m = pofs.meta();
+    println!(
+        "POFs: {:?} method, {}x{} views, sets {}, joint {}",
+        m.method,
+        m.views[0],
+        m.views[1],
+        m.sets,
+        m.joint.is_some()
+    );
     println!(
         "{:<8} {:>5} {:>10} {:>9} {:>8} {:>8} {:>9} {:>8}",
         "mode", "ranks", "frame ms", "cull ms", "cull %", "culled", "culled %", "balance"
@@ -318,6 +327,13 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         "view": view,
         "threads": rayon::current_num_threads(),
         "speedup_pof_vs_none": speedup,
+        "pof": {
+            "method": format!("{:?}", pofs.meta().method).to_lowercase(),
+            "views": pofs.meta().views,
+            "sets": pofs.meta().sets,
+            "joint": pofs.meta().joint.is_some(),
+            "margin": pofs.meta().margin,
+        },
         "cases": cases,
     });
     pofvr::io::write_bytes_atomic(&a.out, serde_json::to_string_pretty(&report)?.as_bytes())?;

@@ -241,24 +241,19 @@ impl Culler<'_> {
             let ibox = self.grid.index_box(id);
             // Occluded when every pixel whose ray meets the brick is opaque enough; the
             // cheap test over the whole rectangle settles most bricks.
-            let mut occluded = true;
-            for y in rect.y0..rect.y1 {
-                let row = (y - tile.y0) as usize * tw;
-                let xs = spans
-                    .row_candidates(y, &ibox, None, (rect.x0, rect.x1))
-                    .unwrap_or(rect.x0..rect.x1);
-                for x in xs {
-                    if buffer[row + (x - tile.x0) as usize] < self.threshold
-                        && spans.hits(x, y, &ibox)
-                    {
-                        occluded = false;
-                        break;
-                    }
+            let occluded = (rect.y0..rect.y1).all(|y| {
+                let start = (y - tile.y0) as usize * tw + (rect.x0 - tile.x0) as usize;
+                let row = &buffer[start..start + rect.width() as usize];
+                // Only pixels below the threshold need the span test, and a culled brick has
+                // none: a pass over the row without an early exit (which vectorises) settles
+                // most rows, and only a row with such a pixel is looked at pixel by pixel.
+                if row.iter().fold(true, |all, b| all & (*b >= self.threshold)) {
+                    return true;
                 }
-                if !occluded {
-                    break;
-                }
-            }
+                !(rect.x0..)
+                    .zip(row)
+                    .any(|(x, b)| *b < self.threshold && spans.hits(x, y, &ibox))
+            });
             if occluded {
                 out.culled.push(id);
                 continue;
@@ -366,6 +361,8 @@ const SPAN_SLACK: f64 = 1e-3;
 /// Ray spans of the pixels of a view. Orthographic rays differ only by an affine offset of
 /// their origin, so their spans come from a few multiply-adds per pixel instead of a camera
 /// ray each; perspective views use the renderer's own rays.
+// One per culled tile and frame: the size difference costs nothing.
+#[allow(clippy::large_enum_variant)]
 enum PixelSpans<'a> {
     Orthographic {
         o00: [f64; 3],
@@ -375,6 +372,13 @@ enum PixelSpans<'a> {
         /// `1/d` per axis (0 where `d` is): a multiply per slab instead of a divide; the
         /// rounding difference is far below [`SPAN_SLACK`].
         inv_d: [f64; 3],
+        /// `1/du` per axis (0 where `du` is).
+        inv_du: [f64; 3],
+        /// How fast each slab's crossings move along a row: `−du·inv_d` per axis.
+        slope: [f64; 3],
+        /// `1/slope[a]` on the diagonal, `1/(slope[a] − slope[b])` off it (0 for a zero
+        /// denominator).
+        inv_slope: [[f64; 3]; 3],
     },
     Perspective {
         camera: &'a Camera,
@@ -402,12 +406,28 @@ impl<'a> PixelSpans<'a> {
         let du = at(1.5, 0.5) - o00;
         let dv = at(0.5, 1.5) - o00;
         let d = frame.forward * f64::from(unit) / s;
+        let recip = |x: f64| if x == 0.0 { 0.0 } else { 1.0 / x };
+        let inv_d = d.to_array().map(recip);
+        let du = du.to_array();
+        let slope: [f64; 3] = std::array::from_fn(|a| -du[a] * inv_d[a]);
+        let inv_slope = std::array::from_fn(|a| {
+            std::array::from_fn(|b| {
+                recip(if a == b {
+                    slope[a]
+                } else {
+                    slope[a] - slope[b]
+                })
+            })
+        });
         PixelSpans::Orthographic {
             o00: o00.to_array(),
-            du: du.to_array(),
+            du,
             dv: dv.to_array(),
             d: d.to_array(),
-            inv_d: d.to_array().map(|x| if x == 0.0 { 0.0 } else { 1.0 / x }),
+            inv_d,
+            inv_du: du.map(recip),
+            slope,
+            inv_slope,
         }
     }
 
@@ -420,6 +440,7 @@ impl<'a> PixelSpans<'a> {
                 dv,
                 d,
                 inv_d,
+                ..
             } => {
                 let (fx, fy) = (f64::from(x), f64::from(y));
                 let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
@@ -479,7 +500,14 @@ impl<'a> PixelSpans<'a> {
         (x0, x1): (u32, u32),
     ) -> Option<std::ops::Range<u32>> {
         let PixelSpans::Orthographic {
-            o00, du, dv, inv_d, ..
+            o00,
+            du,
+            dv,
+            inv_d,
+            inv_du,
+            slope,
+            inv_slope,
+            ..
         } = self
         else {
             return None;
@@ -488,20 +516,21 @@ impl<'a> PixelSpans<'a> {
         // The least length, and the least far crossing, the test asks for.
         let need = core.map_or(-SPAN_SLACK, |c| f64::from(c) + SPAN_SLACK);
         let (mut lo_x, mut hi_x) = (f64::NEG_INFINITY, f64::INFINITY);
-        // c0 + c1·x ≥ 0.
-        let mut half_line = |c0: f64, c1: f64| {
+        // c0 + c1·x ≥ 0, with `inv` = 1/c1 (the slopes are the frame's, so their inverses
+        // are too: no division per row).
+        let mut half_line = |c0: f64, c1: f64, inv: f64| {
             if c1 == 0.0 {
                 if c0 < 0.0 {
                     hi_x = f64::NEG_INFINITY;
                 }
             } else if c1 > 0.0 {
-                lo_x = lo_x.max(-c0 / c1);
+                lo_x = lo_x.max(-c0 * inv);
             } else {
-                hi_x = hi_x.min(-c0 / c1);
+                hi_x = hi_x.min(-c0 * inv);
             }
         };
         // (near intercept, far intercept, slope) of each slab's crossings.
-        let mut slabs = [(0.0, 0.0, 0.0); 3];
+        let mut slabs = [(0.0, 0.0, 0usize); 3];
         let mut n = 0;
         for a in 0..3 {
             let o = o00[a] + fy * dv[a];
@@ -514,18 +543,18 @@ impl<'a> PixelSpans<'a> {
                 } else {
                     -SPAN_SLACK
                 };
-                half_line(o - (lo + e), du[a]);
-                half_line((hi - e) - o, -du[a]);
+                half_line(o - (lo + e), du[a], inv_du[a]);
+                half_line((hi - e) - o, -du[a], -inv_du[a]);
                 continue;
             }
             let (ta, tb) = ((lo - o) * inv_d[a], (hi - o) * inv_d[a]);
-            slabs[n] = (ta.min(tb), ta.max(tb), -du[a] * inv_d[a]);
+            slabs[n] = (ta.min(tb), ta.max(tb), a);
             n += 1;
         }
-        for &(_, far_a, m_a) in &slabs[..n] {
-            half_line(far_a - need, m_a);
-            for &(near_b, _, m_b) in &slabs[..n] {
-                half_line(far_a - near_b - need, m_a - m_b);
+        for &(_, far_a, a) in &slabs[..n] {
+            half_line(far_a - need, slope[a], inv_slope[a][a]);
+            for &(near_b, _, b) in &slabs[..n] {
+                half_line(far_a - near_b - need, slope[a] - slope[b], inv_slope[a][b]);
             }
         }
         if lo_x.is_nan() || hi_x.is_nan() {
