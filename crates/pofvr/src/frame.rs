@@ -519,6 +519,12 @@ fn rank_frame(
     // Fragments to tile owners, tiles to rank 0.
     let t = Instant::now();
     let image = match &layout {
+        // One rank has nothing to exchange: blend in place, the same frame bit for bit.
+        Some(_) if comm.size() == 1 => Some(crate::composite::composite_local(
+            &fragments,
+            camera.width,
+            camera.height,
+        )?),
         Some(l) => DirectSend::new(EXCHANGE_TIMEOUT).composite(comm, l, fragments)?,
         None => (me.index() == 0).then(|| Image::new(camera.width, camera.height)),
     };

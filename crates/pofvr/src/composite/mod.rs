@@ -17,6 +17,8 @@ mod test;
 
 use std::fmt;
 
+use rayon::prelude::*;
+
 pub use direct::DirectSend;
 pub use sparse::{pack, unpack, SparseTile, MAX_FRAGMENT_PIXELS};
 
@@ -424,6 +426,9 @@ fn sort_front_to_back<T>(
     }
 }
 
+/// Rows per parallel work item of [`composite_local`].
+const BAND_ROWS: usize = 8;
+
 /// Composites all fragments of a frame in one process: the reference for every
 /// [`Compositor`], with the same order and blend, so the frames are bit-identical (as long
 /// as the fragments lie inside the layout bounds, outside which a compositor drops pixels).
@@ -449,20 +454,37 @@ pub fn composite_local(
         y1: height,
     };
     let w = width as usize;
-    let pixels = image.pixels_mut();
-    for f in order {
-        let Some(r) = f.rect.intersect(&frame) else {
-            continue;
-        };
-        let fw = f.rect.width() as usize;
-        for y in r.y0..r.y1 {
-            let src = &f.pixels[(y - f.rect.y0) as usize * fw..][(r.x0 - f.rect.x0) as usize..]
-                [..r.width() as usize];
-            let dst = &mut pixels[y as usize * w..][r.x0 as usize..][..r.width() as usize];
-            for (d, s) in dst.iter_mut().zip(src) {
-                *d = over(*d, *s);
-            }
-        }
+    if w == 0 {
+        return Ok(image);
     }
+    // Bands of rows in parallel: every pixel still takes its fragments in depth order, with
+    // the one blend, so the bands change nothing but the time.
+    let visible: Vec<(PixelRect, &TileFragment)> = order
+        .into_iter()
+        .filter_map(|f| f.rect.intersect(&frame).map(|r| (r, f)))
+        .collect();
+    image
+        .pixels_mut()
+        .par_chunks_mut(w * BAND_ROWS)
+        .enumerate()
+        .for_each(|(band, pixels)| {
+            #[allow(clippy::cast_possible_truncation)]
+            let (b0, b1) = (
+                (band * BAND_ROWS) as u32,
+                (band * BAND_ROWS + pixels.len() / w) as u32,
+            );
+            for (r, f) in &visible {
+                let fw = f.rect.width() as usize;
+                for y in r.y0.max(b0)..r.y1.min(b1) {
+                    let src = &f.pixels[(y - f.rect.y0) as usize * fw..]
+                        [(r.x0 - f.rect.x0) as usize..][..r.width() as usize];
+                    let dst =
+                        &mut pixels[(y - b0) as usize * w..][r.x0 as usize..][..r.width() as usize];
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        *d = over(*d, *s);
+                    }
+                }
+            }
+        });
     Ok(image)
 }

@@ -227,7 +227,16 @@ impl Culler<'_> {
         let start = Instant::now();
         let frame = camera.frame();
         let tw = tile.width() as usize;
-        let mut buffer = vec![0f32; tile.area()];
+        // A frame's buffer is megabytes; a fresh allocation each frame would be fresh pages,
+        // each faulted in on first touch. Buffers are kept (one per concurrent culler:
+        // ranks may be threads that live for one frame) and cleared instead.
+        let mut buffer = BUFFERS
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .pop()
+            .unwrap_or_default();
+        buffer.clear();
+        buffer.resize(tile.area(), 0.0);
         let mut out = CullResult::default();
         let spans = PixelSpans::new(camera, &frame, self.volume);
         for &id in &bricks.order {
@@ -245,9 +254,9 @@ impl Culler<'_> {
                 let start = (y - tile.y0) as usize * tw + (rect.x0 - tile.x0) as usize;
                 let row = &buffer[start..start + rect.width() as usize];
                 // Only pixels below the threshold need the span test, and a culled brick has
-                // none: a pass over the row without an early exit (which vectorises) settles
-                // most rows, and only a row with such a pixel is looked at pixel by pixel.
-                if row.iter().fold(true, |all, b| all & (*b >= self.threshold)) {
+                // none: a vectorised pass over the row settles most rows, and only a row with
+                // such a pixel is looked at pixel by pixel.
+                if all_at_least(row, self.threshold) {
                     return true;
                 }
                 !(rect.x0..)
@@ -308,6 +317,14 @@ impl Culler<'_> {
                 }
             }
         }
+        let mut pool = BUFFERS
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        // As many as cullers ran at once (ranks as threads), within reason.
+        if pool.len() < 64 {
+            pool.push(buffer);
+        }
+        drop(pool);
         out.cull_ms = start.elapsed().as_secs_f64() * 1e3;
         out
     }
@@ -351,6 +368,20 @@ impl Culler<'_> {
             }
         }
     }
+}
+
+/// Opacity buffers [`Culler::cull`] reuses.
+static BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+
+/// True when every value of `row` is at least `threshold`: in blocks of eight without an
+/// early exit, which compile to vector compares, the tail as one more (overlapping) block.
+#[inline]
+fn all_at_least(row: &[f32], threshold: f32) -> bool {
+    let block = |c: &[f32]| c.iter().fold(true, |all, b| all & (*b >= threshold));
+    if row.len() < 8 {
+        return block(row);
+    }
+    row.chunks_exact(8).fold(true, |all, c| all & block(c)) & block(&row[row.len() - 8..])
 }
 
 /// Slack, in `t` units, by which span tests err on the safe side: a pixel counts as meeting

@@ -295,3 +295,21 @@ fn row_candidates_hold_every_pixel_the_exact_tests_pass() {
         .row_candidates(0, &j.grid.index_box(BrickId(0)), None, (0, 10))
         .is_none());
 }
+
+#[test]
+fn all_at_least_agrees_with_the_plain_test_at_every_length_and_position() {
+    for len in 0..40 {
+        let row = vec![0.96f32; len];
+        assert!(super::all_at_least(&row, 0.95), "len {len}");
+        for low in 0..len {
+            let mut r = row.clone();
+            r[low] = 0.2;
+            assert!(
+                !super::all_at_least(&r, 0.95),
+                "len {len}, low pixel at {low}"
+            );
+            r[low] = 0.95;
+            assert!(super::all_at_least(&r, 0.95), "len {len}, equal at {low}");
+        }
+    }
+}
