@@ -16,6 +16,23 @@ use crate::render::{
 };
 use crate::volume::Volume;
 
+/// The face neighbours of brick cell `c` in a grid of `counts` cells.
+fn neighbours(c: [usize; 3], counts: [usize; 3]) -> impl Iterator<Item = [usize; 3]> {
+    (0..3).flat_map(move |a| {
+        let down = (c[a] > 0).then(|| {
+            let mut n = c;
+            n[a] -= 1;
+            n
+        });
+        let up = (c[a] + 1 < counts[a]).then(|| {
+            let mut n = c;
+            n[a] += 1;
+            n
+        });
+        down.into_iter().chain(up)
+    })
+}
+
 /// A brick assignment and the (curve, ranks) it was dealt for.
 type CachedAssignment = ((Curve, usize), std::sync::Arc<BrickAssignment>);
 
@@ -74,10 +91,11 @@ pub enum JobError {
 }
 
 impl RenderJob {
-    /// Which rank renders which brick: the bricks the family can show (non-empty for some
-    /// basis) dealt round-robin along `curve`, the rest dealt apart
-    /// ([`BrickAssignment::from_order_occupied`]). It depends on the family's bases and the
-    /// data only, not on the weights or the view, so a distributed rank's bricks stay put.
+    /// Which rank renders which brick: each of [`RenderJob::occupied_layers`] (the bricks
+    /// the family cannot show, its surface, the layer under it, …) dealt round-robin along
+    /// `curve` apart from the others ([`BrickAssignment::from_order_classes`]). It depends
+    /// on the family's bases and the data only, not on the weights or the view, so a
+    /// distributed rank's bricks stay put.
     ///
     /// # Errors
     /// [`DistributeError`] for a rank count of zero or one past `u32::MAX`.
@@ -96,14 +114,62 @@ impl RenderJob {
             }
         }
         let order = crate::distribute::SfcOrder::new(self.grid.counts(), curve)?;
-        let every = vec![1.0; self.sampled.basis_count()];
-        let a = std::sync::Arc::new(BrickAssignment::from_order_occupied(
-            &order,
-            ranks,
-            &|id| !self.sampled.is_empty(self.grid.range(id), &every),
-        )?);
+        let layers = self.occupied_layers();
+        let a = std::sync::Arc::new(BrickAssignment::from_order_classes(&order, ranks, &|id| {
+            layers[id.index()]
+        })?);
         *cache = Some(((curve, ranks), a.clone()));
         Ok(a)
+    }
+
+    /// Each brick's layer: 0 for a brick the family cannot show (empty for every basis),
+    /// and for the others 1 + their distance, in bricks across faces, from the nearest
+    /// such brick or the volume's boundary: 1 for the occupied region's surface, 2 for the
+    /// bricks under it, and so on.
+    ///
+    /// Why: whatever the view, what survives culling is mostly the outer layers; dealing
+    /// each layer apart ([`BrickAssignment::from_order_classes`]) gives every rank its
+    /// share of each, so the bricks left to render after culling stay balanced too.
+    #[must_use]
+    pub fn occupied_layers(&self) -> Vec<usize> {
+        let every = vec![1.0; self.sampled.basis_count()];
+        let counts = self.grid.counts();
+        let mut layer: Vec<usize> = self
+            .grid
+            .ids()
+            .map(|id| {
+                if self.sampled.is_empty(self.grid.range(id), &every) {
+                    0
+                } else {
+                    usize::MAX
+                }
+            })
+            .collect();
+        // Breadth-first from the empty bricks and the boundary.
+        let mut front = std::collections::VecDeque::new();
+        for id in self.grid.ids() {
+            if layer[id.index()] == 0 {
+                continue;
+            }
+            let c = self.grid.coords(id);
+            let on_boundary = (0..3).any(|a| c[a] == 0 || c[a] + 1 == counts[a]);
+            let by_empty = neighbours(c, counts).any(|n| layer[self.grid.id(n).index()] == 0);
+            if on_boundary || by_empty {
+                layer[id.index()] = 1;
+                front.push_back(id);
+            }
+        }
+        while let Some(id) = front.pop_front() {
+            let next = layer[id.index()] + 1;
+            for n in neighbours(self.grid.coords(id), counts) {
+                let n = self.grid.id(n);
+                if layer[n.index()] == usize::MAX {
+                    layer[n.index()] = next;
+                    front.push_back(n);
+                }
+            }
+        }
+        layer
     }
 
     /// Bricks the volume and tabulates the family over its value range.

@@ -313,3 +313,70 @@ fn all_at_least_agrees_with_the_plain_test_at_every_length_and_position() {
         }
     }
 }
+
+#[test]
+fn occupied_layers_peel_the_occupied_region_from_its_surface() {
+    // Weights do not matter: the layers are the family's, not the frame's.
+    let j = job(96, &[0.0, 1.0]);
+    let layers = j.occupied_layers();
+    let every = vec![1.0; j.sampled.basis_count()];
+    let counts = j.grid.counts();
+    let mut deepest = 0;
+    for id in j.grid.ids() {
+        let l = layers[id.index()];
+        assert_eq!(
+            l == 0,
+            j.sampled.is_empty(j.grid.range(id), &every),
+            "{id:?}"
+        );
+        if l == 0 {
+            continue;
+        }
+        deepest = deepest.max(l);
+        let c = j.grid.coords(id);
+        let mut near = Vec::new();
+        for a in 0..3 {
+            for s in [-1i64, 1] {
+                #[allow(clippy::cast_possible_wrap, clippy::cast_sign_loss)]
+                let x = c[a] as i64 + s;
+                #[allow(clippy::cast_possible_wrap)]
+                if x < 0 || x >= counts[a] as i64 {
+                    near.push(0); // outside the volume counts as empty
+                    continue;
+                }
+                let mut n = c;
+                #[allow(clippy::cast_sign_loss, clippy::cast_possible_truncation)]
+                {
+                    n[a] = x as usize;
+                }
+                near.push(layers[j.grid.id(n).index()]);
+            }
+        }
+        // One more than the nearest neighbour layer (a distance field in bricks).
+        assert_eq!(
+            l,
+            near.iter().min().unwrap() + 1,
+            "{id:?}: {l} beside {near:?}"
+        );
+    }
+    assert!(
+        deepest >= 3,
+        "the phantom's head is several bricks deep: {deepest}"
+    );
+    // The deal gives every rank its share of each layer.
+    let a = j.assignment(crate::distribute::Curve::Hilbert, 7).unwrap();
+    for l in 1..=deepest {
+        let per: Vec<usize> = (0..7)
+            .map(|r| {
+                a.of(crate::distribute::Rank(r))
+                    .iter()
+                    .filter(|b| layers[b.index()] == l)
+                    .count()
+            })
+            .collect();
+        assert!(
+            per.iter().max().unwrap() - per.iter().min().unwrap() <= 1,
+            "layer {l}: {per:?}"
+        );
+    }
+}

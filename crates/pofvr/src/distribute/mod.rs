@@ -220,16 +220,33 @@ impl BrickAssignment {
         ranks: usize,
         occupied: &dyn Fn(BrickId) -> bool,
     ) -> Result<Self, DistributeError> {
+        Self::from_order_classes(order, ranks, &|b| usize::from(occupied(b)))
+    }
+
+    /// Deals each class of bricks (`class(b)`, small integers) round-robin along the curve
+    /// apart from the others, each deal starting again at rank 0: every rank holds as many
+    /// bricks of each class as any other, give or take one.
+    ///
+    /// # Errors
+    /// [`DistributeError::BadRanks`] when `ranks` is zero or above `u32::MAX`.
+    pub fn from_order_classes(
+        order: &SfcOrder,
+        ranks: usize,
+        class: &dyn Fn(BrickId) -> usize,
+    ) -> Result<Self, DistributeError> {
         if ranks == 0 || u32::try_from(ranks).is_err() {
             return Err(DistributeError::BadRanks(ranks));
         }
         let mut owners = vec![Rank(0); order.len()];
         let mut by_rank = vec![Vec::with_capacity(order.len() / ranks + 1); ranks];
-        let mut next = [0usize; 2];
+        let mut next: Vec<usize> = Vec::new();
         for &b in order.bricks() {
-            let turn = &mut next[usize::from(occupied(b))];
-            let r = *turn % ranks;
-            *turn += 1;
+            let c = class(b);
+            if c >= next.len() {
+                next.resize(c + 1, 0);
+            }
+            let r = next[c] % ranks;
+            next[c] += 1;
             #[allow(clippy::cast_possible_truncation)]
             let rank = Rank(r as u32);
             owners[b.index()] = rank;

@@ -274,7 +274,7 @@ fn a_compact_region_is_spread_evenly_over_ranks() {
 }
 
 #[test]
-fn occupied_bricks_are_dealt_evenly_apart_from_the_others() {
+fn each_class_of_bricks_is_dealt_evenly_apart_from_the_others() {
     let mut rng = seeded_rng();
     for _ in 0..100 {
         let counts = random_counts(&mut rng);
@@ -282,11 +282,20 @@ fn occupied_bricks_are_dealt_evenly_apart_from_the_others() {
         let order = SfcOrder::new(counts, Curve::Hilbert).unwrap();
         // A random occupied set, with runs along the curve as real data have.
         let p = rng.gen_range(0.0..1.0);
-        let occupied: Vec<bool> = (0..order.len()).map(|_| rng.gen_bool(p)).collect();
-        let a = BrickAssignment::from_order_occupied(&order, ranks, &|id| occupied[id.index()])
-            .unwrap();
+        let classes = rng.gen_range(2..6);
+        let class: Vec<usize> = (0..order.len())
+            .map(|_| {
+                if rng.gen_bool(p) {
+                    rng.gen_range(1..classes)
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let a =
+            BrickAssignment::from_order_classes(&order, ranks, &|id| class[id.index()]).unwrap();
         let mut seen = vec![false; order.len()];
-        let mut per_rank = vec![[0usize; 2]; ranks];
+        let mut per_rank = vec![vec![0usize; classes]; ranks];
         for (r, counts) in per_rank.iter_mut().enumerate() {
             #[allow(clippy::cast_possible_truncation)]
             let rank = Rank(r as u32);
@@ -303,14 +312,14 @@ fn occupied_bricks_are_dealt_evenly_apart_from_the_others() {
                     "{b:?} dealt twice"
                 );
                 assert_eq!(a.owner(*b), Some(rank));
-                counts[usize::from(occupied[b.index()])] += 1;
+                counts[class[b.index()]] += 1;
             }
         }
         assert!(seen.iter().all(|s| *s), "a brick was not dealt");
-        for class in 0..2 {
-            let n: Vec<usize> = per_rank.iter().map(|c| c[class]).collect();
+        for c in 0..classes {
+            let n: Vec<usize> = per_rank.iter().map(|r| r[c]).collect();
             let (mn, mx) = (n.iter().min().unwrap(), n.iter().max().unwrap());
-            assert!(mx - mn <= 1, "class {class} over {ranks} ranks: {n:?}");
+            assert!(mx - mn <= 1, "class {c} over {ranks} ranks: {n:?}");
         }
     }
     // All occupied: the plain deal.
@@ -320,4 +329,5 @@ fn occupied_bricks_are_dealt_evenly_apart_from_the_others() {
         BrickAssignment::from_order(&order, 7).unwrap()
     );
     assert!(BrickAssignment::from_order_occupied(&order, 0, &|_| true).is_err());
+    assert!(BrickAssignment::from_order_classes(&order, 0, &|_| 0).is_err());
 }
