@@ -176,8 +176,9 @@ pub(crate) struct RenderArgs {
 /// Culling and the parallel frame.
 #[derive(Args, Debug, Clone)]
 pub(crate) struct FrameArgs {
-    /// Culling mode: none, pof (conservative POFs), pof-set (aggressive POF sets) or exact
-    /// (the sequential oracle, to measure how close POFs get).
+    /// Culling mode: none, pof (conservative POFs), pof-set (the paper's aggressive POF
+    /// sets: culls more, but an estimate, not a bound: a few pixels may break the threshold
+    /// rule) or exact (the sequential oracle, to measure how close POFs get).
     /// > default: pof when --pof is given, otherwise none
     #[arg(long)]
     pub(crate) cull: Option<String>,
