@@ -88,6 +88,9 @@ pub trait OpacityBound: Sync {
         weights: &[f32],
         aggressive: bool,
     ) -> f32;
+    /// A hint that [`OpacityBound::opacity`] will soon be asked for each of `bricks` along
+    /// `dir`: an implementation may start loading what those lookups read.
+    fn prefetch(&self, _bricks: &[BrickId], _dir: DVec3) {}
 }
 
 /// Per-frame geometry of the bricks: which are empty, their footprints and a visibility
@@ -242,7 +245,16 @@ impl Culler<'_> {
         buffer.resize(tile.area(), 0.0);
         let mut out = CullResult::default();
         let spans = PixelSpans::new(camera, &frame, self.volume);
-        for &id in &bricks.order {
+        let prefetch = matches!(self.mode, CullMode::Pof | CullMode::PofSet)
+            && camera.projection == Projection::Orthographic;
+        for (i, &id) in bricks.order.iter().enumerate() {
+            // The POF lookups read a few scattered lines of a large table, cold after the
+            // ray casting of the previous frame: ask for the next bricks' a batch ahead.
+            if prefetch && i % PREFETCH == 0 {
+                if let (Some(b), Some(next)) = (self.bounds, bricks.order.get(i + PREFETCH..)) {
+                    b.prefetch(&next[..next.len().min(PREFETCH)], frame.forward);
+                }
+            }
             let Some(rect) = bricks.footprints[id.index()].and_then(|r| r.intersect(&tile)) else {
                 continue;
             };
@@ -372,6 +384,9 @@ impl Culler<'_> {
         }
     }
 }
+
+/// Bricks per prefetch batch, and how far ahead of the culling loop the batch is.
+const PREFETCH: usize = 16;
 
 /// Opacity buffers [`Culler::cull`] reuses.
 static BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
@@ -623,6 +638,9 @@ impl OpacityBound for crate::pof::PofTable {
     }
     fn opacity(&self, brick: BrickId, dir: DVec3, weights: &[f32], aggressive: bool) -> f32 {
         crate::pof::PofTable::opacity(self, brick, dir, weights, pof_mode(self, aggressive))
+    }
+    fn prefetch(&self, bricks: &[BrickId], dir: DVec3) {
+        crate::pof::PofTable::prefetch(self, bricks, dir);
     }
     fn opacity_cone(
         &self,

@@ -684,6 +684,30 @@ impl PofTable {
         self.cell_opacity(self.record(s), cell, weights, mode)
     }
 
+    /// Starts loading the cache lines [`PofTable::opacity`] reads for each of `bricks`
+    /// along `view_dir` (each function's value in the direction's cell), without waiting.
+    pub fn prefetch(&self, bricks: &[BrickId], view_dir: DVec3) {
+        let (i, j) = self.cell_of(view_dir);
+        let c = i * self.meta.views[1] as usize + j;
+        let at = match self.meta.encoding {
+            Encoding::Table => 4 * c,
+            Encoding::U16 => 2 * c,
+            Encoding::U8 => c,
+            Encoding::Cubic => 0,
+        };
+        let size = self.meta.encoding.function_bytes(self.meta.views);
+        for &b in bricks {
+            if let Some(s) = self.slot(b) {
+                let rec = self.record(s);
+                for f in 0..self.meta.functions() {
+                    if let Some(x) = rec.get(f * size + at) {
+                        prefetch_line(x);
+                    }
+                }
+            }
+        }
+    }
+
     /// As [`PofTable::opacity`] for every direction within `half_angle` radians of `axis`
     /// (perspective views: the cone under which the eye sees the brick): the minimum over
     /// every view cell the cone touches.
@@ -781,4 +805,20 @@ fn cone_cells(views: [u32; 2], axis: DVec3, half_angle: f64) -> Vec<(usize, usiz
     (i0..=i1)
         .flat_map(|i| cols.iter().map(move |j| (i, *j)))
         .collect()
+}
+
+/// Asks the CPU to bring the cache line holding `b` closer: a hint, with no effect on
+/// results.
+#[inline]
+fn prefetch_line(b: &u8) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch reads nothing architecturally and cannot fault; SSE is part of the
+    // x86_64 baseline.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+            std::ptr::from_ref(b).cast::<i8>(),
+        );
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = b;
 }
