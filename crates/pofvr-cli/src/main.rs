@@ -18,9 +18,26 @@ fn main() {
     }
     let cli = args::Cli::parse();
     if let Err(e) = run(cli) {
-        eprintln!("pofvr: error: {e:#}");
+        eprintln!("pofvr: error: {}", message(&e));
         std::process::exit(2);
     }
+}
+
+/// The error and its causes, each cause once: many of our errors already print their
+/// source (`file: reason`), and the chain would repeat it.
+fn message(e: &anyhow::Error) -> String {
+    let mut msg = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if msg.contains(&text) {
+            continue;
+        }
+        if !msg.is_empty() {
+            msg.push_str(": ");
+        }
+        msg.push_str(&text);
+    }
+    msg
 }
 
 fn run(cli: args::Cli) -> anyhow::Result<()> {

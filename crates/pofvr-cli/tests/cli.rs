@@ -338,3 +338,14 @@ fn every_real_volume_renders() {
         );
     }
 }
+
+#[test]
+fn an_error_names_its_cause_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(&["info", "no-such-volume.nhdr"], dir.path());
+    assert_eq!(o.status.code(), Some(2));
+    let e = stderr(&o);
+    assert!(e.contains("no-such-volume.nhdr"), "{e}");
+    let cause = "No such file or directory";
+    assert_eq!(e.matches(cause).count(), 1, "{e}");
+}
