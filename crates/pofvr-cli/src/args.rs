@@ -193,6 +193,11 @@ pub(crate) struct FrameArgs {
     /// Precomputed POFs (`pofvr pof build`) for --cull pof and pof-set.
     #[arg(long, value_name = "FILE.pof")]
     pub(crate) pof: Option<PathBuf>,
+    /// More POFs of the same family built with other --core-length values (repeatable):
+    /// each pixel of a brick gets the bound of the longest core its ray runs through, which
+    /// lifts culling in oblique views, where most rays run far longer than the shortest.
+    #[arg(long, value_name = "FILE.pof", requires = "pof")]
+    pub(crate) pof_level: Vec<PathBuf>,
     /// Ranks to render with, as threads of this process (the paper's parallel algorithm;
     /// the frame is identical for any count).
     /// > default: 1
@@ -266,6 +271,9 @@ pub(crate) struct BenchCullArgs {
     /// Precomputed POFs for the pof and pof-set modes (built on the fly when absent).
     #[arg(long, value_name = "FILE.pof")]
     pub(crate) pof: Option<PathBuf>,
+    /// More POFs built with other --core-length values (repeatable; see `render --pof-level`).
+    #[arg(long, value_name = "FILE.pof", requires = "pof")]
+    pub(crate) pof_level: Vec<PathBuf>,
     /// View (azimuth, elevation in degrees).
     /// > default: 0,0
     #[arg(long, default_value = "0,0", allow_hyphen_values = true)]

@@ -235,7 +235,15 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         Projection::Orthographic,
     );
     let pofs = match &a.pof {
-        Some(p) => job.load_pofs(p)?,
+        Some(p) => {
+            let mut tables = vec![job.load_pofs(p)?];
+            for l in &a.pof_level {
+                tables.push(job.load_pofs(l)?);
+            }
+            pofvr::cull::CoreLevels::new(tables)
+                .map_err(|e| anyhow::anyhow!("--pof-level: {e}"))?
+                .expect("at least one table")
+        }
         None => {
             let settings = pofvr::pof::PofSettings {
                 sets: true,
@@ -243,7 +251,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
                 ert: job.settings.ert,
                 ..Default::default()
             };
-            crate::cmd::pof::build_table(
+            let table = crate::cmd::pof::build_table(
                 &job.volume,
                 &job.grid,
                 &job.tf,
@@ -252,7 +260,10 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
                 ui,
                 "building POFs (with sets)",
             )?
-            .table
+            .table;
+            pofvr::cull::CoreLevels::new(vec![table])
+                .map_err(|e| anyhow::anyhow!("{e}"))?
+                .expect("one table")
         }
     };
     let bounds: Option<&dyn OpacityBound> = Some(&pofs);
@@ -292,14 +303,15 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         view[1],
         rayon::current_num_threads()
     );
-    let m = pofs.meta();
+    let m = pofs.first().meta();
     println!(
-        "POFs: {:?} method, {}x{} views, sets {}, joint {}",
+        "POFs: {:?} method, {}x{} views, sets {}, joint {}, core lengths {:?}",
         m.method,
         m.views[0],
         m.views[1],
         m.sets,
-        m.joint.is_some()
+        m.joint.is_some(),
+        pofs.core_lengths()
     );
     println!(
         "{:<8} {:>5} {:>10} {:>9} {:>8} {:>8} {:>9} {:>8}",
@@ -328,11 +340,12 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         "threads": rayon::current_num_threads(),
         "speedup_pof_vs_none": speedup,
         "pof": {
-            "method": format!("{:?}", pofs.meta().method).to_lowercase(),
-            "views": pofs.meta().views,
-            "sets": pofs.meta().sets,
-            "joint": pofs.meta().joint.is_some(),
-            "margin": pofs.meta().margin,
+            "core_lengths": pofs.core_lengths(),
+            "method": format!("{:?}", pofs.first().meta().method).to_lowercase(),
+            "views": pofs.first().meta().views,
+            "sets": pofs.first().meta().sets,
+            "joint": pofs.first().meta().joint.is_some(),
+            "margin": pofs.first().meta().margin,
         },
         "cases": cases,
     });

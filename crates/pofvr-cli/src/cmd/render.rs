@@ -164,9 +164,16 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             (None, None) => CullMode::None,
         };
         if let Some(p) = &a.frame.pof {
-            pofs = Some(job.load_pofs(p)?);
-        }
-        if cull == CullMode::PofSet && !pofs.as_ref().is_some_and(pofvr::pof::PofTable::has_sets) {
+            let mut tables = vec![job.load_pofs(p)?];
+            for l in &a.frame.pof_level {
+                tables.push(job.load_pofs(l)?);
+            }
+            if cull == CullMode::PofSet && !tables.iter().all(pofvr::pof::PofTable::has_sets) {
+                bail!("--cull pof-set needs POF files built with --sets");
+            }
+            pofs = pofvr::cull::CoreLevels::new(tables)
+                .map_err(|e| anyhow::anyhow!("--pof-level: {e}"))?;
+        } else if cull == CullMode::PofSet {
             bail!("--cull pof-set needs a POF file built with --sets");
         }
         Some(FrameOptions {

@@ -91,6 +91,93 @@ pub trait OpacityBound: Sync {
     /// A hint that [`OpacityBound::opacity`] will soon be asked for each of `bricks` along
     /// `dir`: an implementation may start loading what those lookups read.
     fn prefetch(&self, _bricks: &[BrickId], _dir: DVec3) {}
+    /// A bound for rays that run further inside each brick (a longer
+    /// [`OpacityBound::core_length`]), tighter where it applies; `None` when there is none.
+    fn deeper(&self) -> Option<&dyn OpacityBound> {
+        None
+    }
+}
+
+/// POF tables of one family built with different core lengths, shortest first: each pixel
+/// of a brick's footprint gets the bound of the longest core its ray runs through.
+///
+/// Why: a POF holds for every ray running at least `L` inside the brick, so its value is
+/// that of the shortest such rays; in oblique views most rays run much longer, and a table
+/// built for a longer `L` bounds them far more tightly, over a smaller core.
+pub struct CoreLevels {
+    first: crate::pof::PofTable,
+    rest: Option<Box<CoreLevels>>,
+}
+
+impl CoreLevels {
+    /// Orders `tables` by core length; `None` when there is none.
+    ///
+    /// # Errors
+    /// A message naming two tables with the same core length.
+    pub fn new(mut tables: Vec<crate::pof::PofTable>) -> Result<Option<Self>, String> {
+        tables.sort_by(|a, b| a.core_length().total_cmp(&b.core_length()));
+        if let Some(w) = tables
+            .windows(2)
+            .find(|w| w[0].core_length() == w[1].core_length())
+        {
+            return Err(format!(
+                "two POF files with core length {}: levels need different --core-length",
+                w[0].core_length()
+            ));
+        }
+        let mut levels: Option<CoreLevels> = None;
+        while let Some(t) = tables.pop() {
+            levels = Some(CoreLevels {
+                first: t,
+                rest: levels.map(Box::new),
+            });
+        }
+        Ok(levels)
+    }
+
+    /// The table with the shortest core (the others differ only in their core length).
+    #[must_use]
+    pub fn first(&self) -> &crate::pof::PofTable {
+        &self.first
+    }
+
+    /// The core lengths, shortest first.
+    #[must_use]
+    pub fn core_lengths(&self) -> Vec<f32> {
+        let mut v = vec![self.first.core_length()];
+        if let Some(r) = &self.rest {
+            v.extend(r.core_lengths());
+        }
+        v
+    }
+}
+
+impl OpacityBound for CoreLevels {
+    fn core_length(&self) -> f32 {
+        self.first.core_length()
+    }
+    fn opacity(&self, brick: BrickId, dir: DVec3, weights: &[f32], aggressive: bool) -> f32 {
+        OpacityBound::opacity(&self.first, brick, dir, weights, aggressive)
+    }
+    fn opacity_cone(
+        &self,
+        brick: BrickId,
+        axis: DVec3,
+        half_angle: f64,
+        weights: &[f32],
+        aggressive: bool,
+    ) -> f32 {
+        OpacityBound::opacity_cone(&self.first, brick, axis, half_angle, weights, aggressive)
+    }
+    fn prefetch(&self, bricks: &[BrickId], dir: DVec3) {
+        OpacityBound::prefetch(&self.first, bricks, dir);
+        if let Some(r) = &self.rest {
+            r.prefetch(bricks, dir);
+        }
+    }
+    fn deeper(&self) -> Option<&dyn OpacityBound> {
+        self.rest.as_deref().map(|r| r as &dyn OpacityBound)
+    }
 }
 
 /// Per-frame geometry of the bricks: which are empty, their footprints and a visibility
@@ -245,6 +332,20 @@ impl Culler<'_> {
         buffer.resize(tile.area(), 0.0);
         let mut out = CullResult::default();
         let spans = PixelSpans::new(camera, &frame, self.volume);
+        // The POF levels (core lengths), shortest core first.
+        let mut levels: Vec<&dyn OpacityBound> = Vec::new();
+        if matches!(self.mode, CullMode::Pof | CullMode::PofSet) {
+            let mut next = Some(self.bounds.expect("POF culling needs POFs"));
+            while let Some(b) = next {
+                if levels.len() == MAX_LEVELS {
+                    break;
+                }
+                levels.push(b);
+                next = b.deeper();
+            }
+        }
+        let cores: Vec<f32> = levels.iter().map(|l| l.core_length()).collect();
+        let mut alphas = vec![0f32; levels.len()];
         let prefetch = matches!(self.mode, CullMode::Pof | CullMode::PofSet)
             && camera.projection == Projection::Orthographic;
         for (i, &id) in bricks.order.iter().enumerate() {
@@ -296,37 +397,72 @@ impl Culler<'_> {
                     }
                 }
                 CullMode::Pof | CullMode::PofSet => {
-                    let bounds = self.bounds.expect("POF culling needs POFs");
                     let aggressive = self.mode == CullMode::PofSet;
-                    let alpha = self.brick_bound(bounds, camera, &frame, id, aggressive);
-                    if alpha <= 0.0 {
+                    // Per level (core length), the bound for pixels in that level's core:
+                    // a longer core's pixels are in every shorter one's too.
+                    let mut any = false;
+                    for (k, level) in levels.iter().enumerate() {
+                        let a = self.brick_bound(*level, camera, &frame, id, aggressive);
+                        alphas[k] = if k == 0 { a } else { a.max(alphas[k - 1]) };
+                        any |= alphas[k] > 0.0;
+                    }
+                    if !any {
                         continue;
                     }
-                    let core = bounds.core_length();
                     let ortho = matches!(spans, PixelSpans::Orthographic { .. });
                     for y in rect.y0..rect.y1 {
                         let row = (y - tile.y0) as usize * tw;
-                        let in_core = |x: u32| spans.in_core(x, y, &ibox, core);
+                        let in_core = |x: u32, k: usize| spans.in_core(x, y, &ibox, cores[k]);
                         if !ortho {
-                            for x in (rect.x0..rect.x1).filter(|x| in_core(*x)) {
+                            for x in rect.x0..rect.x1 {
+                                // The deepest level whose core holds the pixel.
+                                let Some(k) =
+                                    (0..levels.len()).take_while(|k| in_core(x, *k)).last()
+                                else {
+                                    continue;
+                                };
                                 let b = &mut buffer[row + (x - tile.x0) as usize];
-                                *b += (1.0 - *b) * alpha;
+                                *b += (1.0 - *b) * alphas[k];
                             }
                             continue;
                         }
                         // Orthographic: a ray's length inside the box is concave in the pixel
-                        // position, so each row of the core is one run: find its ends and
-                        // fill between (`each_row_of_a_core_footprint_is_one_run`).
-                        let xs = spans
-                            .row_candidates(y, &ibox, Some(core), (rect.x0, rect.x1))
-                            .unwrap_or(rect.x0..rect.x1);
-                        let Some(x0) = xs.clone().find(|x| in_core(*x)) else {
-                            continue;
+                        // position, so each row of each core is one run, nested in the
+                        // shorter cores' runs: find the ends and fill each ring between two
+                        // runs with its level's bound (`each_row_of_a_core_footprint_is_one_run`).
+                        let mut runs: [Option<(u32, u32)>; MAX_LEVELS] = [None; MAX_LEVELS];
+                        let mut outer = (rect.x0, rect.x1);
+                        for k in 0..levels.len() {
+                            let xs = spans
+                                .row_candidates(y, &ibox, Some(cores[k]), outer)
+                                .unwrap_or(outer.0..outer.1);
+                            let Some(x0) = xs.clone().find(|x| in_core(*x, k)) else {
+                                break;
+                            };
+                            let x1 = (x0 + 1..xs.end)
+                                .rev()
+                                .find(|x| in_core(*x, k))
+                                .unwrap_or(x0)
+                                + 1;
+                            runs[k] = Some((x0, x1));
+                            outer = (x0, x1);
+                        }
+                        let mut fill = |from: u32, to: u32, a: f32| {
+                            let run =
+                                row + (from - tile.x0) as usize..row + (to - tile.x0) as usize;
+                            for b in &mut buffer[run] {
+                                *b += (1.0 - *b) * a;
+                            }
                         };
-                        let x1 = (x0 + 1..xs.end).rev().find(|x| in_core(*x)).unwrap_or(x0) + 1;
-                        let run = row + (x0 - tile.x0) as usize..row + (x1 - tile.x0) as usize;
-                        for b in &mut buffer[run] {
-                            *b += (1.0 - *b) * alpha;
+                        for k in 0..levels.len() {
+                            let Some((x0, x1)) = runs[k] else { break };
+                            match runs.get(k + 1).copied().flatten() {
+                                Some((i0, i1)) => {
+                                    fill(x0, i0, alphas[k]);
+                                    fill(i1, x1, alphas[k]);
+                                }
+                                None => fill(x0, x1, alphas[k]),
+                            }
                         }
                     }
                 }
@@ -384,6 +520,9 @@ impl Culler<'_> {
         }
     }
 }
+
+/// The most POF levels (core lengths) culling uses.
+const MAX_LEVELS: usize = 8;
 
 /// Bricks per prefetch batch, and how far ahead of the culling loop the batch is.
 const PREFETCH: usize = 16;

@@ -380,3 +380,54 @@ fn occupied_layers_peel_the_occupied_region_from_its_surface() {
         );
     }
 }
+
+#[test]
+fn core_levels_cull_more_and_keep_the_threshold_rule() {
+    use crate::pof::{PofSettings, PofTable};
+    // The skull shell occludes the inside.
+    let j = job(64, &[3.0, 1.0]);
+    let table = |core: f32| {
+        let settings = PofSettings {
+            views: [8, 8],
+            core_length: Some(core),
+            step: j.settings.step,
+            ert: j.settings.ert,
+            ..PofSettings::default()
+        };
+        PofTable::build(&j.volume, &j.grid, &j.tf, &j.sampled, &settings, &|_, _| {}).unwrap()
+    };
+    // Out of order on purpose: levels sort by core length.
+    let levels = CoreLevels::new(vec![table(7.0), table(4.0)])
+        .unwrap()
+        .unwrap();
+    assert_eq!(levels.core_lengths(), vec![4.0, 7.0]);
+    assert!(CoreLevels::new(vec![table(4.0), table(4.0)]).is_err());
+    assert!(CoreLevels::new(Vec::new()).unwrap().is_none());
+    let single = table(4.0);
+    let mut more = 0;
+    for (az, el, p) in [
+        (0.0, 0.0, Projection::Orthographic),
+        (41.0, 17.0, Projection::Orthographic),
+        (130.0, -35.0, Projection::Orthographic),
+        (-70.0, 30.0, Projection::Perspective),
+    ] {
+        let c = cam(&j, az, el, p);
+        let (reference, _) = render_reference(&j, &c);
+        let opts = FrameOptions {
+            cull: CullMode::Pof,
+            cull_threshold: 0.95,
+            ..FrameOptions::default()
+        };
+        let (one, st1) = render_frame(&j, Some(&single), &c, &opts).unwrap();
+        let (two, st2) = render_frame(&j, Some(&levels), &c, &opts).unwrap();
+        assert_conservative(&reference, &one, 0.95, &format!("one level {az},{el}"));
+        assert_conservative(&reference, &two, 0.95, &format!("two levels {az},{el}"));
+        eprintln!(
+            "view {az},{el}: culled with one / two levels {} / {}",
+            st1.bricks.culled, st2.bricks.culled
+        );
+        assert!(st2.bricks.culled >= st1.bricks.culled, "{az},{el}");
+        more += st2.bricks.culled - st1.bricks.culled;
+    }
+    assert!(more > 0, "a longer core lifts culling somewhere");
+}
