@@ -54,7 +54,8 @@ pub(crate) struct PofKnobs {
     #[arg(long, default_value_t = 0.99)]
     pub(crate) ert: f32,
     /// Core length L in units of the smallest spacing: the POF bounds rays running at least
-    /// this far inside a brick.
+    /// this far inside a brick. Files built with longer cores (e.g. 14 for 16³ bricks) add
+    /// tighter bounds for long rays as `render --pof-level`.
     /// > default: half the brick size
     #[arg(long, value_name = "L")]
     pub(crate) core_length: Option<f32>,
