@@ -152,3 +152,81 @@ fn pof_build_method_sampled_passes_check() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--phases"));
 }
+
+#[test]
+fn render_takes_pof_levels_and_refuses_two_of_one_core_length() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let build = |name: &str, core: &str| {
+        let out = pofvr()
+            .current_dir(d)
+            .args([
+                "pof",
+                "build",
+                "phantom:head:48",
+                "--brick",
+                "8",
+                "--views",
+                "6,6",
+                "--core-length",
+                core,
+                "--quiet",
+                "-o",
+                name,
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    build("l4.pof", "4");
+    build("l7.pof", "7");
+    build("l4b.pof", "4");
+    let render = |levels: &[&str]| {
+        let mut c = pofvr();
+        c.current_dir(d).args([
+            "render",
+            "phantom:head:48",
+            "--brick",
+            "8",
+            "--size",
+            "48x48",
+            "--view",
+            "30,20",
+            "--weights",
+            "3,1",
+            "--pof",
+            "l4.pof",
+            "--quiet",
+            "--stats",
+            "s.json",
+            "--out",
+            "o.png",
+        ]);
+        for l in levels {
+            c.args(["--pof-level", l]);
+        }
+        c.output().unwrap()
+    };
+    let out = render(&["l7.pof"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stats: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("s.json")).unwrap()).unwrap();
+    assert_eq!(stats["cull"], "pof");
+    std::fs::remove_file(d.join("o.png")).unwrap();
+    let out = render(&["l4b.pof"]);
+    assert_eq!(out.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        e.contains("--pof-level") && e.contains("core length 4"),
+        "{e}"
+    );
+    assert!(!d.join("o.png").exists(), "a refused render writes nothing");
+}
