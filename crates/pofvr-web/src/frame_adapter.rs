@@ -42,6 +42,29 @@ pub fn load_pofs(path: &Path, job: &RenderJob) -> Result<Pofs, String> {
         .map_err(|e| e.to_string())
 }
 
+/// Loads a POF file and further levels of it built with other core lengths
+/// ([`pofvr::cull::CoreLevels`]).
+///
+/// # Errors
+/// A message naming the file and what does not match, or two levels of one core length.
+pub fn load_pof_levels(
+    path: &Path,
+    levels: &[std::path::PathBuf],
+    job: &RenderJob,
+) -> Result<Pofs, String> {
+    if levels.is_empty() {
+        return load_pofs(path, job);
+    }
+    let mut tables = vec![job.load_pofs(path).map_err(|e| e.to_string())?];
+    for l in levels {
+        tables.push(job.load_pofs(l).map_err(|e| e.to_string())?);
+    }
+    let levels = pofvr::cull::CoreLevels::new(tables)
+        .map_err(|e| format!("--pof-level: {e}"))?
+        .ok_or_else(|| "no POF file".to_owned())?;
+    Ok(Box::new(levels))
+}
+
 /// What changes per frame besides the camera and the options: the look of the volume.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Look {
@@ -168,5 +191,39 @@ mod tests {
             panic!("a missing POF file must be an error");
         };
         assert!(e.contains("missing.pof"), "{e}");
+    }
+
+    #[test]
+    fn pof_levels_load_in_order_and_name_a_bad_file() {
+        use pofvr::pof::{PofSettings, PofTable};
+        let j = job();
+        let dir = std::env::temp_dir().join(format!("pofvr-web-levels-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let save = |core: f32, name: &str| {
+            let settings = PofSettings {
+                views: [4, 4],
+                core_length: Some(core),
+                ..PofSettings::default()
+            };
+            let t = PofTable::build(&j.volume, &j.grid, &j.tf, &j.sampled, &settings, &|_, _| {})
+                .unwrap();
+            let p = dir.join(name);
+            t.save(&p).unwrap();
+            p
+        };
+        let (a, b) = (save(8.0, "a.pof"), save(12.0, "b.pof"));
+        let levels = load_pof_levels(&b, std::slice::from_ref(&a), &j).unwrap();
+        // The shortest core comes first, the longer one as the deeper level.
+        assert_eq!(levels.core_length(), 8.0);
+        assert_eq!(levels.deeper().map(OpacityBound::core_length), Some(12.0));
+        let Err(e) = load_pof_levels(&a, std::slice::from_ref(&a), &j) else {
+            panic!("two levels of one core length must be an error");
+        };
+        assert!(e.contains("core length 8"), "{e}");
+        let Err(e) = load_pof_levels(&a, &[dir.join("missing.pof")], &j) else {
+            panic!("a missing level must be an error");
+        };
+        assert!(e.contains("missing.pof"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

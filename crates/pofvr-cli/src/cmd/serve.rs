@@ -23,6 +23,9 @@ pub(crate) struct ServeArgs {
     /// Precomputed plenoptic opacity functions for the volume and family.
     #[arg(long, value_name = "FILE.pof")]
     pub(crate) pof: Option<PathBuf>,
+    /// More POFs built with other --core-length values (repeatable; see `render --pof-level`).
+    #[arg(long, value_name = "FILE.pof", requires = "pof")]
+    pub(crate) pof_level: Vec<PathBuf>,
     /// TCP port; 0 picks a free one (the address is printed on stdout).
     /// > default: 8080
     #[arg(long, default_value_t = 8080)]
@@ -45,7 +48,7 @@ pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
     let pofs = a
         .pof
         .as_deref()
-        .map(|p| frame_adapter::load_pofs(p, &job))
+        .map(|p| frame_adapter::load_pof_levels(p, &a.pof_level, &job))
         .transpose()
         .map_err(|e| anyhow!(e))?;
     sp.finish_and_clear();
