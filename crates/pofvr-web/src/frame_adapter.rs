@@ -52,17 +52,9 @@ pub fn load_pof_levels(
     levels: &[std::path::PathBuf],
     job: &RenderJob,
 ) -> Result<Pofs, String> {
-    if levels.is_empty() {
-        return load_pofs(path, job);
-    }
-    let mut tables = vec![job.load_pofs(path).map_err(|e| e.to_string())?];
-    for l in levels {
-        tables.push(job.load_pofs(l).map_err(|e| e.to_string())?);
-    }
-    let levels = pofvr::cull::CoreLevels::new(tables)
-        .map_err(|e| format!("--pof-level: {e}"))?
-        .ok_or_else(|| "no POF file".to_owned())?;
-    Ok(Box::new(levels))
+    job.load_pof_levels(path, levels)
+        .map(|l| Box::new(l) as Pofs)
+        .map_err(|e| e.to_string())
 }
 
 /// What changes per frame besides the camera and the options: the look of the volume.

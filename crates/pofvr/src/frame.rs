@@ -8,7 +8,7 @@ use serde::Serialize;
 use crate::brick::{BrickError, BrickGrid, BrickId, BrickStore};
 use crate::comm::{CommError, Communicator, LocalCommunicator, Rank};
 use crate::composite::{CompositeError, Compositor, DirectSend, TileFragment, TileLayout};
-use crate::cull::{CullMode, Culler, FrameBricks, OpacityBound};
+use crate::cull::{CoreLevels, CullMode, Culler, FrameBricks, OpacityBound};
 use crate::distribute::{BrickAssignment, Curve, DistributeError};
 use crate::pof::{PofError, PofTable};
 use crate::render::{
@@ -244,6 +244,28 @@ impl RenderJob {
             });
         }
         Ok(table)
+    }
+
+    /// Loads `first` and further levels of it built with other core lengths
+    /// ([`CoreLevels`]), each checked as [`RenderJob::load_pofs`] does.
+    ///
+    /// # Errors
+    /// [`PofError`] naming the file and what differs, or two levels of one core length.
+    pub fn load_pof_levels(
+        &self,
+        first: &std::path::Path,
+        more: &[std::path::PathBuf],
+    ) -> Result<CoreLevels, PofError> {
+        let mut tables = vec![self.load_pofs(first)?];
+        for path in more {
+            tables.push(self.load_pofs(path)?);
+        }
+        CoreLevels::new(tables)
+            .map_err(|why| PofError::Setting {
+                field: "core_length",
+                why,
+            })
+            .map(|levels| levels.expect("at least the first table"))
     }
 
     /// Number of bricks that are empty for the current weights.

@@ -235,15 +235,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         Projection::Orthographic,
     );
     let pofs = match &a.pof {
-        Some(p) => {
-            let mut tables = vec![job.load_pofs(p)?];
-            for l in &a.pof_level {
-                tables.push(job.load_pofs(l)?);
-            }
-            pofvr::cull::CoreLevels::new(tables)
-                .map_err(|e| anyhow::anyhow!("--pof-level: {e}"))?
-                .expect("at least one table")
-        }
+        Some(p) => job.load_pof_levels(p, &a.pof_level)?,
         None => {
             let settings = pofvr::pof::PofSettings {
                 sets: true,
@@ -251,7 +243,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
                 ert: job.settings.ert,
                 ..Default::default()
             };
-            let table = crate::cmd::pof::build_table(
+            crate::cmd::pof::build_table(
                 &job.volume,
                 &job.grid,
                 &job.tf,
@@ -260,10 +252,8 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
                 ui,
                 "building POFs (with sets)",
             )?
-            .table;
-            pofvr::cull::CoreLevels::new(vec![table])
-                .map_err(|e| anyhow::anyhow!("{e}"))?
-                .expect("one table")
+            .table
+            .into()
         }
     };
     let bounds: Option<&dyn OpacityBound> = Some(&pofs);

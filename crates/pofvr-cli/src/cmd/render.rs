@@ -164,16 +164,10 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             (None, None) => CullMode::None,
         };
         if let Some(p) = &a.frame.pof {
-            let mut tables = vec![job.load_pofs(p)?];
-            for l in &a.frame.pof_level {
-                tables.push(job.load_pofs(l)?);
-            }
-            if cull == CullMode::PofSet && !tables.iter().all(pofvr::pof::PofTable::has_sets) {
-                bail!("--cull pof-set needs POF files built with --sets");
-            }
-            pofs = pofvr::cull::CoreLevels::new(tables)
-                .map_err(|e| anyhow::anyhow!("--pof-level: {e}"))?;
-        } else if cull == CullMode::PofSet {
+            pofs = Some(job.load_pof_levels(p, &a.frame.pof_level)?);
+        }
+        if cull == CullMode::PofSet && !pofs.as_ref().is_some_and(pofvr::cull::CoreLevels::has_sets)
+        {
             bail!("--cull pof-set needs a POF file built with --sets");
         }
         Some(FrameOptions {

@@ -121,7 +121,7 @@ impl CoreLevels {
             .find(|w| w[0].core_length() == w[1].core_length())
         {
             return Err(format!(
-                "two POF files with core length {}: levels need different --core-length",
+                "two POF files with core length {}: each --pof-level needs its own --core-length",
                 w[0].core_length()
             ));
         }
@@ -141,6 +141,12 @@ impl CoreLevels {
         &self.first
     }
 
+    /// Whether every level holds POF sets (for `--cull pof-set`).
+    #[must_use]
+    pub fn has_sets(&self) -> bool {
+        self.first.has_sets() && self.rest.as_ref().is_none_or(|r| r.has_sets())
+    }
+
     /// The core lengths, shortest first.
     #[must_use]
     pub fn core_lengths(&self) -> Vec<f32> {
@@ -149,6 +155,13 @@ impl CoreLevels {
             v.extend(r.core_lengths());
         }
         v
+    }
+}
+
+/// One table is one level.
+impl From<crate::pof::PofTable> for CoreLevels {
+    fn from(first: crate::pof::PofTable) -> Self {
+        CoreLevels { first, rest: None }
     }
 }
 
