@@ -190,37 +190,7 @@ impl BrickAssignment {
     /// # Errors
     /// [`DistributeError::BadRanks`] when `ranks` is zero or above `u32::MAX`.
     pub fn from_order(order: &SfcOrder, ranks: usize) -> Result<Self, DistributeError> {
-        if ranks == 0 || u32::try_from(ranks).is_err() {
-            return Err(DistributeError::BadRanks(ranks));
-        }
-        let mut owners = vec![Rank(0); order.len()];
-        let mut by_rank = vec![Vec::with_capacity(order.len() / ranks + 1); ranks];
-        for (i, &b) in order.bricks().iter().enumerate() {
-            let r = i % ranks;
-            #[allow(clippy::cast_possible_truncation)]
-            let rank = Rank(r as u32);
-            owners[b.index()] = rank;
-            by_rank[r].push(b);
-        }
-        Ok(BrickAssignment { owners, by_rank })
-    }
-
-    /// Deals the bricks of `order` where `occupied` holds round-robin along the curve, and
-    /// the others likewise, each deal starting again at rank 0.
-    ///
-    /// Why: most of a real volume's bricks are empty for its transfer-function family and
-    /// are never rendered, and a plain deal gives ranks the occupied bricks unevenly (a rank
-    /// whose turns fall on empty space gets fewer). Dealt apart, every rank holds the same
-    /// number of occupied bricks, give or take one, still spread along the curve.
-    ///
-    /// # Errors
-    /// [`DistributeError::BadRanks`] when `ranks` is zero or above `u32::MAX`.
-    pub fn from_order_occupied(
-        order: &SfcOrder,
-        ranks: usize,
-        occupied: &dyn Fn(BrickId) -> bool,
-    ) -> Result<Self, DistributeError> {
-        Self::from_order_classes(order, ranks, &|b| usize::from(occupied(b)))
+        Self::from_order_classes(order, ranks, &|_| 0)
     }
 
     /// Deals each class of bricks (`class(b)`, small integers) round-robin along the curve

@@ -322,12 +322,11 @@ fn each_class_of_bricks_is_dealt_evenly_apart_from_the_others() {
             assert!(mx - mn <= 1, "class {c} over {ranks} ranks: {n:?}");
         }
     }
-    // All occupied: the plain deal.
+    // One class: the plain deal.
     let order = SfcOrder::new([5, 6, 7], Curve::Z).unwrap();
     assert_eq!(
-        BrickAssignment::from_order_occupied(&order, 7, &|_| true).unwrap(),
+        BrickAssignment::from_order_classes(&order, 7, &|_| 1).unwrap(),
         BrickAssignment::from_order(&order, 7).unwrap()
     );
-    assert!(BrickAssignment::from_order_occupied(&order, 0, &|_| true).is_err());
     assert!(BrickAssignment::from_order_classes(&order, 0, &|_| 0).is_err());
 }
