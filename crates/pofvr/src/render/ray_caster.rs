@@ -457,18 +457,7 @@ impl<'a> RayCaster<'a> {
     ) -> RayStats {
         with_voxels!(self.volume.data(), v => {
             let tri = Trilinear::new(v, self.volume.dims());
-            let mut st = RayStats::default();
-            let w = rect.width() as usize;
-            for (i, px) in out.iter_mut().enumerate() {
-                #[allow(clippy::cast_possible_truncation)]
-                let (x, y) = (rect.x0 + (i % w) as u32, rect.y0 + (i / w) as u32);
-                let ray = self.pixel_ray(camera, frame, x, y);
-                if let Some(span) = ray.span(b) {
-                    st.rays += 1;
-                    st.samples += self.march(&tri, &ray, sample_range(span, self.settings.step), px);
-                }
-            }
-            st
+            self.march_rect(&tri, camera, frame, rect, b, out)
         })
     }
 
@@ -487,20 +476,34 @@ impl<'a> RayCaster<'a> {
         debug_assert_eq!(copy.data().data_type(), self.volume.data_type());
         let st = with_voxels!(copy.data(), v => {
             let tri = Trilinear::local(v, copy.dims(), copy.origin(), self.volume.dims());
-            let mut st = RayStats::default();
-            let w = rect.width() as usize;
-            for (i, px) in out.iter_mut().enumerate() {
-                #[allow(clippy::cast_possible_truncation)]
-                let (x, y) = (rect.x0 + (i % w) as u32, rect.y0 + (i / w) as u32);
-                let ray = self.pixel_ray(camera, frame, x, y);
-                if let Some(span) = ray.span(b) {
-                    st.rays += 1;
-                    st.samples += self.march(&tri, &ray, sample_range(span, self.settings.step), px);
-                }
-            }
-            st
+            self.march_rect(&tri, camera, frame, rect, b, &mut out)
         });
         (out, st)
+    }
+
+    /// Marches every pixel of `rect` through the box `b`, compositing behind `out`
+    /// (row-major over `rect`).
+    fn march_rect<T: Gather>(
+        &self,
+        tri: &Trilinear<'_, T>,
+        camera: &Camera,
+        frame: &ViewFrame,
+        rect: PixelRect,
+        b: &IndexBox,
+        out: &mut [[f32; 4]],
+    ) -> RayStats {
+        let mut st = RayStats::default();
+        let w = rect.width() as usize;
+        for (i, px) in out.iter_mut().enumerate() {
+            #[allow(clippy::cast_possible_truncation)]
+            let (x, y) = (rect.x0 + (i % w) as u32, rect.y0 + (i / w) as u32);
+            let ray = self.pixel_ray(camera, frame, x, y);
+            if let Some(span) = ray.span(b) {
+                st.rays += 1;
+                st.samples += self.march(tri, &ray, sample_range(span, self.settings.step), px);
+            }
+        }
+        st
     }
 
     /// Composites samples `k0..k1` of `ray` behind `acc`; returns the samples taken.
