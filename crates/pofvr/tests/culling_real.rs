@@ -28,10 +28,15 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
+/// The largest channel difference of two pixels.
+fn pixel_difference(r: &[f32; 4], c: &[f32; 4]) -> f32 {
+    (0..4).map(|k| (r[k] - c[k]).abs()).fold(0.0, f32::max)
+}
+
 pub fn assert_conservative(reference: &Image, culled: &Image, threshold: f32, what: &str) {
     let mut worst = 0f32;
     for (i, (r, c)) in reference.pixels().iter().zip(culled.pixels()).enumerate() {
-        let d = (0..4).map(|k| (r[k] - c[k]).abs()).fold(0.0, f32::max);
+        let d = pixel_difference(r, c);
         if r[3] < threshold {
             assert!(
                 d <= 1e-6,
@@ -54,7 +59,7 @@ fn pixels_breaking_the_rule(reference: &Image, culled: &Image, threshold: f32) -
         .iter()
         .zip(culled.pixels())
         .filter(|(r, c)| {
-            let d = (0..4).map(|k| (r[k] - c[k]).abs()).fold(0.0, f32::max);
+            let d = pixel_difference(r, c);
             (r[3] < threshold && d > 1e-6) || d > 1.0 - threshold + 1e-6
         })
         .count()
