@@ -230,3 +230,83 @@ fn render_takes_pof_levels_and_refuses_two_of_one_core_length() {
     );
     assert!(!d.join("o.png").exists(), "a refused render writes nothing");
 }
+
+#[test]
+fn render_takes_sub_brick_pofs_beside_its_own_and_refuses_two_sub_brick_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let build = |name: &str, brick: &str, core: &str| {
+        let out = pofvr()
+            .current_dir(d)
+            .args([
+                "pof",
+                "build",
+                "phantom:head:48",
+                "--brick",
+                brick,
+                "--views",
+                "6,6",
+                "--core-length",
+                core,
+                "--quiet",
+                "-o",
+                name,
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    build("b16.pof", "16", "8");
+    build("b8.pof", "8", "4");
+    build("b8l7.pof", "8", "7");
+    build("b4.pof", "4", "2");
+    let render = |pofs: &[&str]| {
+        let mut c = pofvr();
+        c.current_dir(d).args([
+            "render",
+            "phantom:head:48",
+            "--size",
+            "48x48",
+            "--view",
+            "30,20",
+            "--weights",
+            "3,1",
+            "--quiet",
+            "--stats",
+            "s.json",
+            "--out",
+            "o.png",
+            "--pof",
+            pofs[0],
+        ]);
+        for l in &pofs[1..] {
+            c.args(["--pof-level", l]);
+        }
+        c.output().unwrap()
+    };
+    for pofs in [
+        &["b8.pof"][..],
+        &["b8.pof", "b8l7.pof"],
+        &["b16.pof", "b8.pof", "b8l7.pof"],
+    ] {
+        let out = render(pofs);
+        assert!(
+            out.status.success(),
+            "{pofs:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let stats: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join("s.json")).unwrap()).unwrap();
+        assert_eq!(stats["cull"], "pof", "{pofs:?}");
+        std::fs::remove_file(d.join("o.png")).unwrap();
+    }
+    let out = render(&["b16.pof", "b8.pof", "b4.pof"]);
+    assert_eq!(out.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("b4.pof") && e.contains("sub-brick size"), "{e}");
+    assert!(!d.join("o.png").exists(), "a refused render writes nothing");
+}

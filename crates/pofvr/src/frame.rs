@@ -226,6 +226,15 @@ impl RenderJob {
     /// [`PofError`] naming the file and what differs.
     pub fn load_pofs(&self, path: &std::path::Path) -> Result<PofTable, PofError> {
         let table = PofTable::load(path, &self.volume, &self.grid, &self.tf)?;
+        self.check_sampling(path, table)
+    }
+
+    /// The table's step and early-termination threshold must be the renderer's.
+    fn check_sampling(
+        &self,
+        path: &std::path::Path,
+        table: PofTable,
+    ) -> Result<PofTable, PofError> {
         let file = path.display().to_string();
         if table.step() != self.settings.step {
             return Err(PofError::Mismatch {
@@ -249,23 +258,64 @@ impl RenderJob {
     /// Loads `first` and further levels of it built with other core lengths
     /// ([`CoreLevels`]), each checked as [`RenderJob::load_pofs`] does.
     ///
+    /// Tables may also be built for sub-bricks of the render bricks (`pof build --brick 8`
+    /// for `--brick 16`), all of one brick size: each visible brick then gets the bounds
+    /// of its sub-bricks, and where there are tables for the render bricks too, the higher
+    /// of the two at each pixel.
+    ///
     /// # Errors
-    /// [`PofError`] naming the file and what differs, or two levels of one core length.
+    /// [`PofError`] naming the file and what differs, two levels of one core length, or
+    /// sub-brick tables of two brick sizes.
     pub fn load_pof_levels(
         &self,
         first: &std::path::Path,
         more: &[std::path::PathBuf],
     ) -> Result<CoreLevels, PofError> {
-        let mut tables = vec![self.load_pofs(first)?];
-        for path in more {
-            tables.push(self.load_pofs(path)?);
+        let render = self.grid.brick_size();
+        let mut own = Vec::new();
+        let mut sub: Vec<PofTable> = Vec::new();
+        let mut fine: Option<BrickGrid> = None;
+        for path in std::iter::once(first).chain(more.iter().map(std::path::PathBuf::as_path)) {
+            let size = PofTable::open(path)?.meta().brick_size as usize;
+            if size == render || size < 2 || !render.is_multiple_of(size) {
+                // The render grid's own, or a mismatch that `load` names.
+                own.push(self.load_pofs(path)?);
+                continue;
+            }
+            if let Some(g) = &fine {
+                if g.brick_size() != size {
+                    return Err(PofError::Mismatch {
+                        file: path.display().to_string(),
+                        what: "sub-brick size (every sub-brick table needs the same)",
+                        in_file: size.to_string(),
+                        expected: g.brick_size().to_string(),
+                    });
+                }
+            } else {
+                fine = Some(BrickGrid::from_volume(&self.volume, size).map_err(|e| {
+                    PofError::Setting {
+                        field: "brick_size",
+                        why: e.to_string(),
+                    }
+                })?);
+            }
+            let grid = fine.as_ref().expect("made above");
+            let table = PofTable::load(path, &self.volume, grid, &self.tf)?;
+            sub.push(self.check_sampling(path, table)?);
         }
-        CoreLevels::new(tables)
-            .map_err(|why| PofError::Setting {
+        let levels = |tables| {
+            CoreLevels::new(tables).map_err(|why| PofError::Setting {
                 field: "core_length",
                 why,
             })
-            .map(|levels| levels.expect("at least the first table"))
+        };
+        let sub = levels(sub)?.map(|l| l.with_grid(fine.expect("sub-brick tables have a grid")));
+        Ok(match (levels(own)?, sub) {
+            (Some(own), Some(sub)) => own.with_sub_bricks(sub),
+            (Some(own), None) => own,
+            (None, Some(sub)) => sub,
+            (None, None) => unreachable!("at least the first table"),
+        })
     }
 
     /// Number of bricks that are empty for the current weights.

@@ -214,6 +214,38 @@ impl BrickGrid {
         BrickId((c[0] + self.counts[0] * (c[1] + self.counts[1] * c[2])) as u32)
     }
 
+    /// The bricks of `fine` (a grid of the same volume with a brick size dividing this
+    /// one's) that make up brick `id`, with their index boxes.
+    ///
+    /// # Panics
+    /// When `fine`'s brick size does not divide this grid's (a setup error).
+    pub fn sub_bricks<'f>(
+        &self,
+        id: BrickId,
+        fine: &'f BrickGrid,
+    ) -> impl Iterator<Item = (BrickId, IndexBox)> + 'f {
+        assert!(
+            self.brick_size.is_multiple_of(fine.brick_size),
+            "sub-bricks of {} need a dividing brick size, not {}",
+            self.brick_size,
+            fine.brick_size
+        );
+        let k = self.brick_size / fine.brick_size;
+        let c = self.coords(id);
+        let n = fine.counts;
+        (0..k * k * k).filter_map(move |i| {
+            let f = [
+                c[0] * k + i % k,
+                c[1] * k + (i / k) % k,
+                c[2] * k + i / (k * k),
+            ];
+            (f[0] < n[0] && f[1] < n[1] && f[2] < n[2]).then(|| {
+                let id = fine.id(f);
+                (id, fine.index_box(id))
+            })
+        })
+    }
+
     /// Bricks along x, y, z.
     #[must_use]
     pub fn counts(&self) -> [usize; 3] {

@@ -123,3 +123,36 @@ fn frames_from_private_brick_copies_equal_frames_from_the_volume_bit_for_bit() {
         }
     }
 }
+
+#[test]
+fn sub_bricks_tile_their_brick() {
+    use crate::volume::phantom::Phantom;
+    // 37 voxels: bricks of 8 end in a partial one, as do their sub-bricks of 4 and 2.
+    let v = Phantom::SheppLogan.generate(37);
+    let coarse = BrickGrid::from_volume(&v, 8).unwrap();
+    for size in [2, 4, 8] {
+        let fine = BrickGrid::from_volume(&v, size).unwrap();
+        let mut seen = vec![0u32; fine.len()];
+        for id in coarse.ids() {
+            let b = coarse.index_box(id);
+            let mut volume = 0f32;
+            for (f, fb) in coarse.sub_bricks(id, &fine) {
+                seen[f.index()] += 1;
+                assert_eq!(fb, fine.index_box(f));
+                for a in 0..3 {
+                    assert!(
+                        fb.lo[a] >= b.lo[a] && fb.hi[a] <= b.hi[a],
+                        "{size}: {fb:?} in {b:?}"
+                    );
+                }
+                volume += (0..3).map(|a| fb.hi[a] - fb.lo[a]).product::<f32>();
+            }
+            let whole: f32 = (0..3).map(|a| b.hi[a] - b.lo[a]).product();
+            assert_eq!(volume, whole, "{size}: sub-bricks of {id:?} fill it");
+        }
+        assert!(
+            seen.iter().all(|n| *n == 1),
+            "{size}: each sub-brick in one brick"
+        );
+    }
+}

@@ -96,6 +96,22 @@ pub trait OpacityBound: Sync {
     fn deeper(&self) -> Option<&dyn OpacityBound> {
         None
     }
+    /// The grid of the bricks the bounds are for, when finer than the render bricks (each
+    /// render brick then gets the bounds of its sub-bricks); `None` when they are the render
+    /// bricks.
+    fn grid(&self) -> Option<&BrickGrid> {
+        None
+    }
+    /// Bounds for the sub-bricks of the render bricks (their [`OpacityBound::grid`] says
+    /// which), used together with these: each pixel gets the higher of the two.
+    fn sub_bricks(&self) -> Option<&dyn OpacityBound> {
+        None
+    }
+    /// The early-termination threshold of the renderer the bounds are for: a render brick
+    /// stops compositing there, so what its sub-bricks' bounds add up to is capped at it.
+    fn ert(&self) -> f32 {
+        1.0
+    }
 }
 
 /// POF tables of one family built with different core lengths, shortest first: each pixel
@@ -107,6 +123,10 @@ pub trait OpacityBound: Sync {
 pub struct CoreLevels {
     first: crate::pof::PofTable,
     rest: Option<Box<CoreLevels>>,
+    /// The tables' brick grid when finer than the render bricks ([`OpacityBound::grid`]).
+    fine: Option<BrickGrid>,
+    /// Levels for sub-bricks, beside these ([`OpacityBound::sub_bricks`]).
+    sub: Option<Box<CoreLevels>>,
 }
 
 impl CoreLevels {
@@ -130,9 +150,38 @@ impl CoreLevels {
             levels = Some(CoreLevels {
                 first: t,
                 rest: levels.map(Box::new),
+                fine: None,
+                sub: None,
             });
         }
         Ok(levels)
+    }
+
+    /// Declares the tables to be for `fine`, a grid of sub-bricks of the render bricks
+    /// (built with a brick size dividing theirs): culling then composites, over each
+    /// visible brick, the bounds of its sub-bricks.
+    ///
+    /// Why: a POF is a minimum over a brick's footprint, so one transparent corner of a
+    /// brick (the edge of a skull-stripping mask) zeroes it; sub-bricks confine that loss
+    /// to the corner, while rendering keeps the larger bricks.
+    #[must_use]
+    pub fn with_grid(mut self, fine: BrickGrid) -> Self {
+        self.fine = Some(fine);
+        self
+    }
+
+    /// Adds `sub`, levels for sub-bricks (made [`CoreLevels::with_grid`]), to these levels
+    /// of the render bricks: culling takes the higher of the two bounds at each pixel.
+    #[must_use]
+    pub fn with_sub_bricks(mut self, sub: CoreLevels) -> Self {
+        self.sub = Some(Box::new(sub));
+        self
+    }
+
+    /// The levels for sub-bricks, if any.
+    #[must_use]
+    pub fn sub_levels(&self) -> Option<&CoreLevels> {
+        self.sub.as_deref()
     }
 
     /// The table with the shortest core (the others differ only in their core length).
@@ -161,7 +210,12 @@ impl CoreLevels {
 /// One table is one level.
 impl From<crate::pof::PofTable> for CoreLevels {
     fn from(first: crate::pof::PofTable) -> Self {
-        CoreLevels { first, rest: None }
+        CoreLevels {
+            first,
+            rest: None,
+            fine: None,
+            sub: None,
+        }
     }
 }
 
@@ -190,6 +244,15 @@ impl OpacityBound for CoreLevels {
     }
     fn deeper(&self) -> Option<&dyn OpacityBound> {
         self.rest.as_deref().map(|r| r as &dyn OpacityBound)
+    }
+    fn grid(&self) -> Option<&BrickGrid> {
+        self.fine.as_ref()
+    }
+    fn sub_bricks(&self) -> Option<&dyn OpacityBound> {
+        self.sub.as_deref().map(|s| s as &dyn OpacityBound)
+    }
+    fn ert(&self) -> f32 {
+        self.first.ert()
     }
 }
 
@@ -329,7 +392,12 @@ impl Culler<'_> {
     /// # Panics
     /// When a POF mode is asked for without bounds (a setup error the frame rejects first).
     #[must_use]
-    pub fn cull(&self, camera: &Camera, bricks: &FrameBricks, tile: PixelRect) -> CullResult {
+    pub fn cull<'a>(
+        &'a self,
+        camera: &Camera,
+        bricks: &FrameBricks,
+        tile: PixelRect,
+    ) -> CullResult {
         let start = Instant::now();
         let frame = camera.frame();
         let tw = tile.width() as usize;
@@ -345,10 +413,11 @@ impl Culler<'_> {
         buffer.resize(tile.area(), 0.0);
         let mut out = CullResult::default();
         let spans = PixelSpans::new(camera, &frame, self.volume);
-        // The POF levels (core lengths), shortest core first.
-        let mut levels: Vec<&dyn OpacityBound> = Vec::new();
-        if matches!(self.mode, CullMode::Pof | CullMode::PofSet) {
-            let mut next = Some(self.bounds.expect("POF culling needs POFs"));
+        // The POF levels (core lengths) of the render bricks and of their sub-bricks,
+        // shortest core first.
+        let chain = |first: Option<&'a dyn OpacityBound>| {
+            let mut levels: Vec<&dyn OpacityBound> = Vec::new();
+            let mut next = first;
             while let Some(b) = next {
                 if levels.len() == MAX_LEVELS {
                     break;
@@ -356,11 +425,25 @@ impl Culler<'_> {
                 levels.push(b);
                 next = b.deeper();
             }
-        }
-        let cores: Vec<f32> = levels.iter().map(|l| l.core_length()).collect();
-        let mut alphas = vec![0f32; levels.len()];
-        let prefetch = matches!(self.mode, CullMode::Pof | CullMode::PofSet)
-            && camera.projection == Projection::Orthographic;
+            levels
+        };
+        let (own, sub) = match self.bounds {
+            Some(b) if matches!(self.mode, CullMode::Pof | CullMode::PofSet) => {
+                if b.grid().is_some() {
+                    (Vec::new(), chain(Some(b)))
+                } else {
+                    (chain(Some(b)), chain(b.sub_bricks()))
+                }
+            }
+            _ => (Vec::new(), Vec::new()),
+        };
+        let fine = sub.first().and_then(|b| b.grid());
+        let own_cores: Vec<f32> = own.iter().map(|l| l.core_length()).collect();
+        let sub_cores: Vec<f32> = sub.iter().map(|l| l.core_length()).collect();
+        let mut alphas = vec![0f32; MAX_LEVELS];
+        let mut scratch: Vec<f32> = Vec::new();
+        // (Sub-brick bounds are looked up by other ids: no prefetch for them.)
+        let prefetch = !own.is_empty() && camera.projection == Projection::Orthographic;
         for (i, &id) in bricks.order.iter().enumerate() {
             // The POF lookups read a few scattered lines of a large table, cold after the
             // ray casting of the previous frame: ask for the next bricks' a batch ahead.
@@ -411,71 +494,81 @@ impl Culler<'_> {
                 }
                 CullMode::Pof | CullMode::PofSet => {
                     let aggressive = self.mode == CullMode::PofSet;
-                    // Per level (core length), the bound for pixels in that level's core:
-                    // a longer core's pixels are in every shorter one's too.
-                    let mut any = false;
-                    for (k, level) in levels.iter().enumerate() {
-                        let a = self.brick_bound(*level, camera, &frame, id, aggressive);
-                        alphas[k] = if k == 0 { a } else { a.max(alphas[k - 1]) };
-                        any |= alphas[k] > 0.0;
-                    }
-                    if !any {
-                        continue;
-                    }
-                    let ortho = matches!(spans, PixelSpans::Orthographic { .. });
-                    for y in rect.y0..rect.y1 {
-                        let row = (y - tile.y0) as usize * tw;
-                        let in_core = |x: u32, k: usize| spans.in_core(x, y, &ibox, cores[k]);
-                        if !ortho {
-                            for x in rect.x0..rect.x1 {
-                                // The deepest level whose core holds the pixel.
-                                let Some(k) =
-                                    (0..levels.len()).take_while(|k| in_core(x, *k)).last()
-                                else {
-                                    continue;
-                                };
-                                let b = &mut buffer[row + (x - tile.x0) as usize];
-                                *b += (1.0 - *b) * alphas[k];
-                            }
-                            continue;
-                        }
-                        // Orthographic: a ray's length inside the box is concave in the pixel
-                        // position, so each row of each core is one run, nested in the
-                        // shorter cores' runs: find the ends and fill each ring between two
-                        // runs with its level's bound (`each_row_of_a_core_footprint_is_one_run`).
-                        let mut runs: [Option<(u32, u32)>; MAX_LEVELS] = [None; MAX_LEVELS];
-                        let mut outer = (rect.x0, rect.x1);
-                        for k in 0..levels.len() {
-                            let xs = spans
-                                .row_candidates(y, &ibox, Some(cores[k]), outer)
-                                .unwrap_or(outer.0..outer.1);
-                            let Some(x0) = xs.clone().find(|x| in_core(*x, k)) else {
-                                break;
-                            };
-                            let x1 = (x0 + 1..xs.end)
-                                .rev()
-                                .find(|x| in_core(*x, k))
-                                .unwrap_or(x0)
-                                + 1;
-                            runs[k] = Some((x0, x1));
-                            outer = (x0, x1);
-                        }
-                        let mut fill = |from: u32, to: u32, a: f32| {
-                            let run =
-                                row + (from - tile.x0) as usize..row + (to - tile.x0) as usize;
-                            for b in &mut buffer[run] {
-                                *b += (1.0 - *b) * a;
-                            }
+                    let bounds = self.bounds.expect("POF culling needs POFs");
+                    let Some(fine) = fine else {
+                        // The bounds are per render brick: straight into the buffer.
+                        let mut into = Sink::Buffer {
+                            buffer: &mut buffer,
+                            tile,
                         };
-                        for k in 0..levels.len() {
-                            let Some((x0, x1)) = runs[k] else { break };
-                            match runs.get(k + 1).copied().flatten() {
-                                Some((i0, i1)) => {
-                                    fill(x0, i0, alphas[k]);
-                                    fill(i1, x1, alphas[k]);
-                                }
-                                None => fill(x0, x1, alphas[k]),
-                            }
+                        self.composite_bound(
+                            &own,
+                            &own_cores,
+                            &mut alphas,
+                            &spans,
+                            camera,
+                            &frame,
+                            id,
+                            &ibox,
+                            rect,
+                            aggressive,
+                            &mut into,
+                        );
+                        continue;
+                    };
+                    // The bounds are per sub-brick: each bounds its own stretch of a ray, and
+                    // the stretches are disjoint, so their transparencies multiply. The
+                    // brick stops marching at the early-termination threshold, so what it
+                    // adds is capped there.
+                    scratch.clear();
+                    scratch.resize(rect.area(), 1.0);
+                    let mut into = Sink::Transparency {
+                        t: &mut scratch,
+                        rect,
+                    };
+                    for (cid, cbox) in self.grid.sub_bricks(id, fine) {
+                        self.composite_bound(
+                            &sub,
+                            &sub_cores,
+                            &mut alphas,
+                            &spans,
+                            camera,
+                            &frame,
+                            cid,
+                            &cbox,
+                            rect,
+                            aggressive,
+                            &mut into,
+                        );
+                    }
+                    // The brick's own bound, where higher, bounds the same stretch of ray.
+                    if !own.is_empty() {
+                        let mut into = Sink::Lower {
+                            t: &mut scratch,
+                            rect,
+                        };
+                        self.composite_bound(
+                            &own,
+                            &own_cores,
+                            &mut alphas,
+                            &spans,
+                            camera,
+                            &frame,
+                            id,
+                            &ibox,
+                            rect,
+                            aggressive,
+                            &mut into,
+                        );
+                    }
+                    let cap = bounds.ert();
+                    let rw = rect.width() as usize;
+                    for (r, ts) in scratch.chunks_exact(rw).enumerate() {
+                        let start = (rect.y0 - tile.y0) as usize * tw
+                            + r * tw
+                            + (rect.x0 - tile.x0) as usize;
+                        for (b, t) in buffer[start..start + rw].iter_mut().zip(ts) {
+                            *b += (1.0 - *b) * (1.0 - t).min(cap);
                         }
                     }
                 }
@@ -493,18 +586,93 @@ impl Culler<'_> {
         out
     }
 
+    /// Adds the bound of brick `id` (of the bounds' grid, with index box `ibox`) to `into`
+    /// over `rect`: per level (core length), the level's bound over the pixels of that
+    /// level's core.
+    #[allow(clippy::too_many_arguments)]
+    fn composite_bound(
+        &self,
+        levels: &[&dyn OpacityBound],
+        cores: &[f32],
+        alphas: &mut [f32],
+        spans: &PixelSpans<'_>,
+        camera: &Camera,
+        frame: &ViewFrame,
+        id: BrickId,
+        ibox: &crate::brick::IndexBox,
+        rect: PixelRect,
+        aggressive: bool,
+        into: &mut Sink<'_>,
+    ) {
+        // A longer core's pixels are in every shorter one's too.
+        let mut any = false;
+        for (k, level) in levels.iter().enumerate() {
+            let a = self.brick_bound(*level, camera, frame, id, ibox, aggressive);
+            alphas[k] = if k == 0 { a } else { a.max(alphas[k - 1]) };
+            any |= alphas[k] > 0.0;
+        }
+        if !any {
+            return;
+        }
+        let ortho = matches!(spans, PixelSpans::Orthographic { .. });
+        for y in rect.y0..rect.y1 {
+            let in_core = |x: u32, k: usize| spans.in_core(x, y, ibox, cores[k]);
+            if !ortho {
+                for x in rect.x0..rect.x1 {
+                    // The deepest level whose core holds the pixel.
+                    let Some(k) = (0..levels.len()).take_while(|k| in_core(x, *k)).last() else {
+                        continue;
+                    };
+                    into.add(x..x + 1, y, alphas[k]);
+                }
+                continue;
+            }
+            // Orthographic: a ray's length inside the box is concave in the pixel
+            // position, so each row of each core is one run, nested in the
+            // shorter cores' runs: find the ends and fill each ring between two
+            // runs with its level's bound (`each_row_of_a_core_footprint_is_one_run`).
+            let mut runs: [Option<(u32, u32)>; MAX_LEVELS] = [None; MAX_LEVELS];
+            let mut outer = (rect.x0, rect.x1);
+            for k in 0..levels.len() {
+                let xs = spans
+                    .row_candidates(y, ibox, Some(cores[k]), outer)
+                    .unwrap_or(outer.0..outer.1);
+                let Some(x0) = xs.clone().find(|x| in_core(*x, k)) else {
+                    break;
+                };
+                let x1 = (x0 + 1..xs.end)
+                    .rev()
+                    .find(|x| in_core(*x, k))
+                    .unwrap_or(x0)
+                    + 1;
+                runs[k] = Some((x0, x1));
+                outer = (x0, x1);
+            }
+            for k in 0..levels.len() {
+                let Some((x0, x1)) = runs[k] else { break };
+                match runs.get(k + 1).copied().flatten() {
+                    Some((i0, i1)) => {
+                        into.add(x0..i0, y, alphas[k]);
+                        into.add(i1..x1, y, alphas[k]);
+                    }
+                    None => into.add(x0..x1, y, alphas[k]),
+                }
+            }
+        }
+    }
+
     fn brick_bound(
         &self,
         bounds: &dyn OpacityBound,
         camera: &Camera,
         frame: &ViewFrame,
         id: BrickId,
+        ib: &crate::brick::IndexBox,
         aggressive: bool,
     ) -> f32 {
         match camera.projection {
             Projection::Orthographic => bounds.opacity(id, frame.forward, self.weights, aggressive),
             Projection::Perspective => {
-                let ib = self.grid.index_box(id);
                 let s = DVec3::from(self.volume.spacing().map(f64::from));
                 let lo = DVec3::from(ib.lo.map(f64::from)) * s;
                 let hi = DVec3::from(ib.hi.map(f64::from)) * s;
@@ -529,6 +697,49 @@ impl Culler<'_> {
                     self.weights,
                     aggressive,
                 )
+            }
+        }
+    }
+}
+
+/// Where [`Culler::composite_bound`] adds opacity.
+enum Sink<'b> {
+    /// The tile's opacity buffer.
+    Buffer {
+        buffer: &'b mut [f32],
+        tile: PixelRect,
+    },
+    /// A transparency image over `rect` (sub-brick bounds of one brick, multiplied).
+    Transparency { t: &'b mut [f32], rect: PixelRect },
+    /// The same image, lowered to `1 − a` where that is lower (the brick's own bound).
+    Lower { t: &'b mut [f32], rect: PixelRect },
+}
+
+impl Sink<'_> {
+    /// Composites opacity `a` over pixels `xs` of row `y`.
+    fn add(&mut self, xs: std::ops::Range<u32>, y: u32, a: f32) {
+        if xs.is_empty() {
+            return;
+        }
+        let lower = matches!(self, Sink::Lower { .. });
+        match self {
+            Sink::Buffer { buffer, tile } => {
+                let row = (y - tile.y0) as usize * tile.width() as usize;
+                let run = row + (xs.start - tile.x0) as usize..row + (xs.end - tile.x0) as usize;
+                for b in &mut buffer[run] {
+                    *b += (1.0 - *b) * a;
+                }
+            }
+            Sink::Transparency { t, rect } | Sink::Lower { t, rect } => {
+                let row = (y - rect.y0) as usize * rect.width() as usize;
+                let run = row + (xs.start - rect.x0) as usize..row + (xs.end - rect.x0) as usize;
+                for v in &mut t[run] {
+                    *v = if lower {
+                        v.min(1.0 - a)
+                    } else {
+                        *v * (1.0 - a)
+                    };
+                }
             }
         }
     }
@@ -793,6 +1004,9 @@ impl OpacityBound for crate::pof::PofTable {
     }
     fn prefetch(&self, bricks: &[BrickId], dir: DVec3) {
         crate::pof::PofTable::prefetch(self, bricks, dir);
+    }
+    fn ert(&self) -> f32 {
+        crate::pof::PofTable::ert(self)
     }
     fn opacity_cone(
         &self,

@@ -431,3 +431,90 @@ fn core_levels_cull_more_and_keep_the_threshold_rule() {
     }
     assert!(more > 0, "a longer core lifts culling somewhere");
 }
+
+#[test]
+fn sub_brick_bounds_keep_the_threshold_rule_and_cull() {
+    // An occluding skull, and a see-through one where over-culling would show.
+    let culled = sub_brick_case(&[3.0, 1.0]);
+    assert!(culled > 0, "sub-brick bounds cull the phantom's inside");
+    sub_brick_case(&[0.6, 1.0]);
+}
+
+/// Renders the phantom with sub-brick bounds (alone, two levels, beside the render bricks'
+/// own) at several views and rank counts, checks the threshold rule and that the frame
+/// does not depend on the rank count, and returns how many bricks were culled.
+fn sub_brick_case(weights: &[f32]) -> usize {
+    use crate::pof::{PofSettings, PofTable};
+    // Render bricks of 8, POFs for bricks of 4.
+    let j = job(64, weights);
+    let fine = BrickGrid::from_volume(&j.volume, 4).unwrap();
+    let table = |core: f32| {
+        let settings = PofSettings {
+            views: [8, 8],
+            core_length: Some(core),
+            step: j.settings.step,
+            ert: j.settings.ert,
+            ..PofSettings::default()
+        };
+        PofTable::build(&j.volume, &fine, &j.tf, &j.sampled, &settings, &|_, _| {}).unwrap()
+    };
+    let one = CoreLevels::from(table(2.0)).with_grid(fine.clone());
+    let two = CoreLevels::new(vec![table(2.0), table(3.5)])
+        .unwrap()
+        .unwrap()
+        .with_grid(fine.clone());
+    assert!(two.grid().is_some());
+    // Bounds for the render bricks and for their sub-bricks: each pixel takes the higher.
+    let own = PofTable::build(
+        &j.volume,
+        &j.grid,
+        &j.tf,
+        &j.sampled,
+        &PofSettings {
+            views: [8, 8],
+            step: j.settings.step,
+            ert: j.settings.ert,
+            ..PofSettings::default()
+        },
+        &|_, _| {},
+    )
+    .unwrap();
+    let both =
+        CoreLevels::from(own).with_sub_bricks(CoreLevels::from(table(2.0)).with_grid(fine.clone()));
+    assert!(both.grid().is_none() && both.sub_bricks().is_some());
+    let mut culled = 0;
+    for (az, el, p) in [
+        (0.0, 0.0, Projection::Orthographic),
+        (41.0, 17.0, Projection::Orthographic),
+        (130.0, -35.0, Projection::Orthographic),
+        (-70.0, 30.0, Projection::Perspective),
+    ] {
+        let c = cam(&j, az, el, p);
+        let (reference, _) = render_reference(&j, &c);
+        for (levels, name) in [
+            (&one, "one level"),
+            (&two, "two levels"),
+            (&both, "own and sub-brick levels"),
+        ] {
+            let mut frames = Vec::new();
+            for ranks in [1, 3] {
+                let opts = FrameOptions {
+                    cull: CullMode::Pof,
+                    cull_threshold: 0.95,
+                    ranks,
+                    ..FrameOptions::default()
+                };
+                let (img, st) = render_frame(&j, Some(levels), &c, &opts).unwrap();
+                assert_conservative(&reference, &img, 0.95, &format!("{name} {az},{el}"));
+                culled += st.bricks.culled;
+                frames.push(img);
+            }
+            assert_eq!(
+                frames[0].pixels(),
+                frames[1].pixels(),
+                "{name} {az},{el}: 1 vs 3 ranks"
+            );
+        }
+    }
+    culled
+}
