@@ -4,8 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use pofvr::brick::BrickGrid;
 use pofvr::cull::range_bound::RangeBound;
-use pofvr::cull::{CullMode, OpacityBound};
+use pofvr::cull::{CoreLevels, CullMode, OpacityBound};
 use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
 use pofvr::pof::{PofSettings, PofTable};
 use pofvr::render::{Camera, Image, Projection, RenderSettings, TransferFunction};
@@ -158,6 +159,24 @@ fn pof_culling_is_conservative_on_every_real_volume() {
         )
         .unwrap();
         let bounds: Option<&dyn OpacityBound> = Some(&table);
+        // POFs of the 8³ sub-bricks of the 16³ render bricks (on the largest volume, 71 440
+        // of them, with the coarsest view grid).
+        let sub = Some(()).map(|()| {
+            let fine = BrickGrid::from_volume(&job.volume, 8).unwrap();
+            let t = PofTable::build(
+                &job.volume,
+                &fine,
+                &job.tf,
+                &job.sampled,
+                &PofSettings {
+                    views: if big { [4, 4] } else { [8, 8] },
+                    ..settings.clone()
+                },
+                &|_, _| {},
+            )
+            .unwrap();
+            CoreLevels::from(t).with_grid(fine)
+        });
         for weights in [[1.0, 1.0], [2.5, 0.5], [0.5, 3.0]] {
             job.tf.set_weights(weights.to_vec()).unwrap();
             let views: &[(f64, f64, Projection)] = if big {
@@ -200,7 +219,20 @@ fn pof_culling_is_conservative_on_every_real_volume() {
                     }
                     culled.push(st.bricks.culled);
                 }
-                eprintln!("{vol} {weights:?} {az},{el}: culled pof/pof-set/exact {culled:?}");
+                if let Some(sub) = &sub {
+                    let opts = FrameOptions {
+                        cull: CullMode::Pof,
+                        ranks: 2,
+                        ..FrameOptions::default()
+                    };
+                    let (img, st) = render_frame(&job, Some(sub), &cam, &opts).unwrap();
+                    let what = format!("{vol} sub-brick POFs {weights:?} {az},{el} {p:?}");
+                    assert_conservative(&reference, &img, 0.95, &what);
+                    culled.push(st.bricks.culled);
+                }
+                eprintln!(
+                    "{vol} {weights:?} {az},{el}: culled pof/pof-set/exact(/sub-brick pof) {culled:?}"
+                );
                 assert!(culled[1] >= culled[0], "{vol}: pof-set < pof: {culled:?}");
                 assert!(culled[2] >= culled[0], "{vol}: exact < pof: {culled:?}");
             }

@@ -612,8 +612,9 @@ impl PofTable {
     ) -> f32 {
         let p = self.meta.basis_count as usize;
         let combine = |set_of: Option<usize>| -> f32 {
-            // Eq. 3 in log space: 1 − Π (1 − αᵢ)^kᵢ.
-            let mut log_t = 0.0f64;
+            // Eq. 3: 1 − Π (1 − αᵢ)^kᵢ. A weight of 1 (the common case) needs no power:
+            // culling asks this for every visible brick and sub-brick of every frame.
+            let mut t = 1.0f64;
             for (i, k) in weights.iter().enumerate().take(p) {
                 if *k > 0.0 {
                     let mut a = self.value(rec, i, None, cell);
@@ -622,12 +623,19 @@ impl PofTable {
                         // cubics could lose that, so it is restored here.
                         a = a.max(self.value(rec, i, set_of, cell));
                     }
-                    let a = a.clamp(0.0, ALPHA_MAX);
-                    log_t += f64::from(*k) * (1.0 - f64::from(a)).ln();
+                    if a <= 0.0 {
+                        continue;
+                    }
+                    let a = f64::from(a.min(ALPHA_MAX));
+                    t *= if *k == 1.0 {
+                        1.0 - a
+                    } else {
+                        (1.0 - a).powf(f64::from(*k))
+                    };
                 }
             }
             #[allow(clippy::cast_possible_truncation)]
-            let a = (1.0 - log_t.exp()) as f32;
+            let a = (1.0 - t) as f32;
             a
         };
         let a = match mode {
@@ -666,8 +674,12 @@ impl PofTable {
             cell,
         )
         .clamp(0.0, ALPHA_MAX);
+        if c == 1.0 || aj <= 0.0 {
+            // The anchor's own weights (the common case): the joint POF as stored.
+            return aj;
+        }
         #[allow(clippy::cast_possible_truncation)]
-        let a = (1.0 - (c * (1.0 - f64::from(aj)).ln()).exp()) as f32;
+        let a = (1.0 - (1.0 - f64::from(aj)).powf(c)) as f32;
         a
     }
 
@@ -680,8 +692,28 @@ impl PofTable {
         let Some(s) = self.slot(brick) else {
             return 0.0;
         };
-        let cell = self.cell_of(view_dir);
+        let cell = self.cell_of_cached(view_dir);
         self.cell_opacity(self.record(s), cell, weights, mode)
+    }
+
+    /// [`PofTable::cell_of`], remembered per thread for the last direction: a frame asks
+    /// for one direction thousands of times (orthographic views), and the angles cost an
+    /// `acos` and an `atan2`.
+    fn cell_of_cached(&self, dir: DVec3) -> (usize, usize) {
+        type Key = ([u64; 3], [u32; 2]);
+        thread_local! {
+            static LAST: std::cell::Cell<Option<(Key, (usize, usize))>> =
+                const { std::cell::Cell::new(None) };
+        }
+        let key = (dir.to_array().map(f64::to_bits), self.meta.views);
+        LAST.with(|last| match last.get() {
+            Some((k, cell)) if k == key => cell,
+            _ => {
+                let cell = self.cell_of(dir);
+                last.set(Some((key, cell)));
+                cell
+            }
+        })
     }
 
     /// Starts loading the cache lines [`PofTable::opacity`] reads for each of `bricks`
