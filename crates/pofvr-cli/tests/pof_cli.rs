@@ -153,35 +153,39 @@ fn pof_build_method_sampled_passes_check() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("--phases"));
 }
 
+/// Builds `name` in `d`: POFs of the 48³ phantom head for bricks of `brick`, 6×6 views,
+/// core length `core`.
+fn build_phantom_pof(d: &std::path::Path, name: &str, brick: &str, core: &str) {
+    let out = pofvr()
+        .current_dir(d)
+        .args([
+            "pof",
+            "build",
+            "phantom:head:48",
+            "--brick",
+            brick,
+            "--views",
+            "6,6",
+            "--core-length",
+            core,
+            "--quiet",
+            "-o",
+            name,
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 #[test]
 fn render_takes_pof_levels_and_refuses_two_of_one_core_length() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let build = |name: &str, core: &str| {
-        let out = pofvr()
-            .current_dir(d)
-            .args([
-                "pof",
-                "build",
-                "phantom:head:48",
-                "--brick",
-                "8",
-                "--views",
-                "6,6",
-                "--core-length",
-                core,
-                "--quiet",
-                "-o",
-                name,
-            ])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
+    let build = |name: &str, core: &str| build_phantom_pof(d, name, "8", core);
     build("l4.pof", "4");
     build("l7.pof", "7");
     build("l4b.pof", "4");
@@ -235,31 +239,7 @@ fn render_takes_pof_levels_and_refuses_two_of_one_core_length() {
 fn render_takes_sub_brick_pofs_beside_its_own_and_refuses_two_sub_brick_sizes() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let build = |name: &str, brick: &str, core: &str| {
-        let out = pofvr()
-            .current_dir(d)
-            .args([
-                "pof",
-                "build",
-                "phantom:head:48",
-                "--brick",
-                brick,
-                "--views",
-                "6,6",
-                "--core-length",
-                core,
-                "--quiet",
-                "-o",
-                name,
-            ])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
+    let build = |name: &str, brick: &str, core: &str| build_phantom_pof(d, name, brick, core);
     build("b16.pof", "16", "8");
     build("b8.pof", "8", "4");
     build("b8l7.pof", "8", "7");

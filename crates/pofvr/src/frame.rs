@@ -276,10 +276,13 @@ impl RenderJob {
         let mut sub: Vec<PofTable> = Vec::new();
         let mut fine: Option<BrickGrid> = None;
         for path in std::iter::once(first).chain(more.iter().map(std::path::PathBuf::as_path)) {
-            let size = PofTable::open(path)?.meta().brick_size as usize;
+            // Opened (mapped and CRC-checked) once, then matched to the grid its size says.
+            let table = PofTable::open(path)?;
+            let size = table.meta().brick_size as usize;
             if size == render || size < 2 || !render.is_multiple_of(size) {
-                // The render grid's own, or a mismatch that `load` names.
-                own.push(self.load_pofs(path)?);
+                // The render grid's own, or a mismatch that `check_matches` names.
+                table.check_matches(&self.volume, &self.grid, &self.tf)?;
+                own.push(self.check_sampling(path, table)?);
                 continue;
             }
             if let Some(g) = &fine {
@@ -300,7 +303,7 @@ impl RenderJob {
                 })?);
             }
             let grid = fine.as_ref().expect("made above");
-            let table = PofTable::load(path, &self.volume, grid, &self.tf)?;
+            table.check_matches(&self.volume, grid, &self.tf)?;
             sub.push(self.check_sampling(path, table)?);
         }
         let levels = |tables| {

@@ -392,12 +392,7 @@ impl Culler<'_> {
     /// # Panics
     /// When a POF mode is asked for without bounds (a setup error the frame rejects first).
     #[must_use]
-    pub fn cull<'a>(
-        &'a self,
-        camera: &Camera,
-        bricks: &FrameBricks,
-        tile: PixelRect,
-    ) -> CullResult {
+    pub fn cull(&self, camera: &Camera, bricks: &FrameBricks, tile: PixelRect) -> CullResult {
         let start = Instant::now();
         let frame = camera.frame();
         let tw = tile.width() as usize;
@@ -413,37 +408,27 @@ impl Culler<'_> {
         buffer.resize(tile.area(), 0.0);
         let mut out = CullResult::default();
         let spans = PixelSpans::new(camera, &frame, self.volume);
-        // The POF levels (core lengths) of the render bricks and of their sub-bricks,
-        // shortest core first.
-        let chain = |first: Option<&'a dyn OpacityBound>| {
-            let mut levels: Vec<&dyn OpacityBound> = Vec::new();
-            let mut next = first;
-            while let Some(b) = next {
-                if levels.len() == MAX_LEVELS {
-                    break;
-                }
-                levels.push(b);
-                next = b.deeper();
-            }
-            levels
-        };
+        // The POF levels of the render bricks and of their sub-bricks.
         let (own, sub) = match self.bounds {
             Some(b) if matches!(self.mode, CullMode::Pof | CullMode::PofSet) => {
                 if b.grid().is_some() {
-                    (Vec::new(), chain(Some(b)))
+                    (Levels::default(), Levels::chain(Some(b)))
                 } else {
-                    (chain(Some(b)), chain(b.sub_bricks()))
+                    (Levels::chain(Some(b)), Levels::chain(b.sub_bricks()))
                 }
             }
-            _ => (Vec::new(), Vec::new()),
+            _ => (Levels::default(), Levels::default()),
         };
-        let fine = sub.first().and_then(|b| b.grid());
-        let own_cores: Vec<f32> = own.iter().map(|l| l.core_length()).collect();
-        let sub_cores: Vec<f32> = sub.iter().map(|l| l.core_length()).collect();
-        let mut alphas = vec![0f32; MAX_LEVELS];
+        let fine = sub.bounds.first().and_then(|b| b.grid());
+        let view = View {
+            camera,
+            frame: &frame,
+            spans: &spans,
+            aggressive: self.mode == CullMode::PofSet,
+        };
         let mut scratch: Vec<f32> = Vec::new();
         // (Sub-brick bounds are looked up by other ids: no prefetch for them.)
-        let prefetch = !own.is_empty() && camera.projection == Projection::Orthographic;
+        let prefetch = !own.bounds.is_empty() && camera.projection == Projection::Orthographic;
         for (i, &id) in bricks.order.iter().enumerate() {
             // The POF lookups read a few scattered lines of a large table, cold after the
             // ray casting of the previous frame: ask for the next bricks' a batch ahead.
@@ -493,7 +478,6 @@ impl Culler<'_> {
                     }
                 }
                 CullMode::Pof | CullMode::PofSet => {
-                    let aggressive = self.mode == CullMode::PofSet;
                     let bounds = self.bounds.expect("POF culling needs POFs");
                     let Some(fine) = fine else {
                         // The bounds are per render brick: straight into the buffer.
@@ -501,19 +485,7 @@ impl Culler<'_> {
                             buffer: &mut buffer,
                             tile,
                         };
-                        self.composite_bound(
-                            &own,
-                            &own_cores,
-                            &mut alphas,
-                            &spans,
-                            camera,
-                            &frame,
-                            id,
-                            &ibox,
-                            rect,
-                            aggressive,
-                            &mut into,
-                        );
+                        self.composite_bound(&own, &view, id, &ibox, rect, &mut into);
                         continue;
                     };
                     // The bounds are per sub-brick: each bounds its own stretch of a ray, and
@@ -527,39 +499,15 @@ impl Culler<'_> {
                         rect,
                     };
                     for (cid, cbox) in self.grid.sub_bricks(id, fine) {
-                        self.composite_bound(
-                            &sub,
-                            &sub_cores,
-                            &mut alphas,
-                            &spans,
-                            camera,
-                            &frame,
-                            cid,
-                            &cbox,
-                            rect,
-                            aggressive,
-                            &mut into,
-                        );
+                        self.composite_bound(&sub, &view, cid, &cbox, rect, &mut into);
                     }
                     // The brick's own bound, where higher, bounds the same stretch of ray.
-                    if !own.is_empty() {
+                    if !own.bounds.is_empty() {
                         let mut into = Sink::Lower {
                             t: &mut scratch,
                             rect,
                         };
-                        self.composite_bound(
-                            &own,
-                            &own_cores,
-                            &mut alphas,
-                            &spans,
-                            camera,
-                            &frame,
-                            id,
-                            &ibox,
-                            rect,
-                            aggressive,
-                            &mut into,
-                        );
+                        self.composite_bound(&own, &view, id, &ibox, rect, &mut into);
                     }
                     let cap = bounds.ert();
                     let rw = rect.width() as usize;
@@ -589,22 +537,24 @@ impl Culler<'_> {
     /// Adds the bound of brick `id` (of the bounds' grid, with index box `ibox`) to `into`
     /// over `rect`: per level (core length), the level's bound over the pixels of that
     /// level's core.
-    #[allow(clippy::too_many_arguments)]
     fn composite_bound(
         &self,
-        levels: &[&dyn OpacityBound],
-        cores: &[f32],
-        alphas: &mut [f32],
-        spans: &PixelSpans<'_>,
-        camera: &Camera,
-        frame: &ViewFrame,
+        levels: &Levels<'_>,
+        view: &View<'_>,
         id: BrickId,
         ibox: &crate::brick::IndexBox,
         rect: PixelRect,
-        aggressive: bool,
         into: &mut Sink<'_>,
     ) {
+        let View {
+            camera,
+            frame,
+            spans,
+            aggressive,
+        } = *view;
+        let (cores, levels) = (&levels.cores, &levels.bounds);
         // A longer core's pixels are in every shorter one's too.
+        let mut alphas = [0f32; MAX_LEVELS];
         let mut any = false;
         for (k, level) in levels.iter().enumerate() {
             let a = self.brick_bound(*level, camera, frame, id, ibox, aggressive);
@@ -700,6 +650,39 @@ impl Culler<'_> {
             }
         }
     }
+}
+
+/// A chain of POF levels, shortest core first, with their core lengths.
+#[derive(Default)]
+struct Levels<'a> {
+    bounds: Vec<&'a dyn OpacityBound>,
+    cores: Vec<f32>,
+}
+
+impl<'a> Levels<'a> {
+    /// `first` and the deeper levels after it, at most [`MAX_LEVELS`].
+    fn chain(first: Option<&'a dyn OpacityBound>) -> Self {
+        let mut bounds: Vec<&dyn OpacityBound> = Vec::new();
+        let mut next = first;
+        while let Some(b) = next {
+            if bounds.len() == MAX_LEVELS {
+                break;
+            }
+            bounds.push(b);
+            next = b.deeper();
+        }
+        let cores = bounds.iter().map(|l| l.core_length()).collect();
+        Levels { bounds, cores }
+    }
+}
+
+/// What every bound composited in one cull shares: the view and the lookup mode.
+#[derive(Clone, Copy)]
+struct View<'v> {
+    camera: &'v Camera,
+    frame: &'v ViewFrame,
+    spans: &'v PixelSpans<'v>,
+    aggressive: bool,
 }
 
 /// Where [`Culler::composite_bound`] adds opacity.

@@ -381,21 +381,32 @@ fn occupied_layers_peel_the_occupied_region_from_its_surface() {
     }
 }
 
+/// The views the POF-level tests render: axis-aligned, two oblique, one perspective.
+const LEVEL_VIEWS: [(f64, f64, Projection); 4] = [
+    (0.0, 0.0, Projection::Orthographic),
+    (41.0, 17.0, Projection::Orthographic),
+    (130.0, -35.0, Projection::Orthographic),
+    (-70.0, 30.0, Projection::Perspective),
+];
+
+/// A POF table of `j`'s family for the bricks of `grid` (8×8 views), with core length
+/// `core` (`None`: half a brick).
+fn pof_table(j: &RenderJob, grid: &BrickGrid, core: Option<f32>) -> crate::pof::PofTable {
+    let settings = crate::pof::PofSettings {
+        views: [8, 8],
+        core_length: core,
+        step: j.settings.step,
+        ert: j.settings.ert,
+        ..crate::pof::PofSettings::default()
+    };
+    crate::pof::PofTable::build(&j.volume, grid, &j.tf, &j.sampled, &settings, &|_, _| {}).unwrap()
+}
+
 #[test]
 fn core_levels_cull_more_and_keep_the_threshold_rule() {
-    use crate::pof::{PofSettings, PofTable};
     // The skull shell occludes the inside.
     let j = job(64, &[3.0, 1.0]);
-    let table = |core: f32| {
-        let settings = PofSettings {
-            views: [8, 8],
-            core_length: Some(core),
-            step: j.settings.step,
-            ert: j.settings.ert,
-            ..PofSettings::default()
-        };
-        PofTable::build(&j.volume, &j.grid, &j.tf, &j.sampled, &settings, &|_, _| {}).unwrap()
-    };
+    let table = |core: f32| pof_table(&j, &j.grid, Some(core));
     // Out of order on purpose: levels sort by core length.
     let levels = CoreLevels::new(vec![table(7.0), table(4.0)])
         .unwrap()
@@ -405,12 +416,7 @@ fn core_levels_cull_more_and_keep_the_threshold_rule() {
     assert!(CoreLevels::new(Vec::new()).unwrap().is_none());
     let single = table(4.0);
     let mut more = 0;
-    for (az, el, p) in [
-        (0.0, 0.0, Projection::Orthographic),
-        (41.0, 17.0, Projection::Orthographic),
-        (130.0, -35.0, Projection::Orthographic),
-        (-70.0, 30.0, Projection::Perspective),
-    ] {
+    for (az, el, p) in LEVEL_VIEWS {
         let c = cam(&j, az, el, p);
         let (reference, _) = render_reference(&j, &c);
         let opts = FrameOptions {
@@ -444,20 +450,10 @@ fn sub_brick_bounds_keep_the_threshold_rule_and_cull() {
 /// own) at several views and rank counts, checks the threshold rule and that the frame
 /// does not depend on the rank count, and returns how many bricks were culled.
 fn sub_brick_case(weights: &[f32]) -> usize {
-    use crate::pof::{PofSettings, PofTable};
     // Render bricks of 8, POFs for bricks of 4.
     let j = job(64, weights);
     let fine = BrickGrid::from_volume(&j.volume, 4).unwrap();
-    let table = |core: f32| {
-        let settings = PofSettings {
-            views: [8, 8],
-            core_length: Some(core),
-            step: j.settings.step,
-            ert: j.settings.ert,
-            ..PofSettings::default()
-        };
-        PofTable::build(&j.volume, &fine, &j.tf, &j.sampled, &settings, &|_, _| {}).unwrap()
-    };
+    let table = |core: f32| pof_table(&j, &fine, Some(core));
     let one = CoreLevels::from(table(2.0)).with_grid(fine.clone());
     let two = CoreLevels::new(vec![table(2.0), table(3.5)])
         .unwrap()
@@ -465,30 +461,12 @@ fn sub_brick_case(weights: &[f32]) -> usize {
         .with_grid(fine.clone());
     assert!(two.grid().is_some());
     // Bounds for the render bricks and for their sub-bricks: each pixel takes the higher.
-    let own = PofTable::build(
-        &j.volume,
-        &j.grid,
-        &j.tf,
-        &j.sampled,
-        &PofSettings {
-            views: [8, 8],
-            step: j.settings.step,
-            ert: j.settings.ert,
-            ..PofSettings::default()
-        },
-        &|_, _| {},
-    )
-    .unwrap();
+    let own = pof_table(&j, &j.grid, None);
     let both =
         CoreLevels::from(own).with_sub_bricks(CoreLevels::from(table(2.0)).with_grid(fine.clone()));
     assert!(both.grid().is_none() && both.sub_bricks().is_some());
     let mut culled = 0;
-    for (az, el, p) in [
-        (0.0, 0.0, Projection::Orthographic),
-        (41.0, 17.0, Projection::Orthographic),
-        (130.0, -35.0, Projection::Orthographic),
-        (-70.0, 30.0, Projection::Perspective),
-    ] {
+    for (az, el, p) in LEVEL_VIEWS {
         let c = cam(&j, az, el, p);
         let (reference, _) = render_reference(&j, &c);
         for (levels, name) in [
