@@ -290,3 +290,83 @@ fn render_takes_sub_brick_pofs_beside_its_own_and_refuses_two_sub_brick_sizes() 
     assert!(e.contains("b4.pof") && e.contains("sub-brick size"), "{e}");
     assert!(!d.join("o.png").exists(), "a refused render writes nothing");
 }
+
+#[test]
+fn pof_upgrade_rewrites_an_older_layout_with_the_same_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    build_phantom_pof(d, "new.pof", "16", "8");
+    // An older pofvr's file: the same values, function-major, format version 3.
+    let new = pofvr::pof::PofTable::open(&d.join("new.pof")).unwrap();
+    let old = new.relayout(false);
+    old.save(&d.join("old.pof")).unwrap();
+    let mut bytes = std::fs::read(d.join("old.pof")).unwrap();
+    bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
+    let crc = crc32fast::hash(&bytes[..252]);
+    bytes[252..256].copy_from_slice(&crc.to_le_bytes());
+    std::fs::write(d.join("old.pof"), &bytes).unwrap();
+    let info = |f: &str| {
+        let out = pofvr()
+            .current_dir(d)
+            .args(["pof", "info", f, "--json"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    assert_eq!(info("old.pof")["layout"], "function-major");
+    let out = pofvr()
+        .current_dir(d)
+        .args(["pof", "upgrade", "old.pof", "-o", "up.pof"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(info("up.pof")["layout"], "cell-major");
+    // The upgraded file is the one a fresh build writes, byte for byte.
+    assert_eq!(
+        std::fs::read(d.join("up.pof")).unwrap(),
+        std::fs::read(d.join("new.pof")).unwrap()
+    );
+    let frame = |pof: &str| {
+        let png = format!("{pof}.png");
+        let out = pofvr()
+            .current_dir(d)
+            .args([
+                "render",
+                "phantom:head:48",
+                "--cull",
+                "pof",
+                "--pof",
+                pof,
+                "--size",
+                "96x96",
+                "--view",
+                "30,20",
+                "--stats",
+                &format!("{pof}.json"),
+                "-o",
+                &png,
+            ])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let st: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join(format!("{pof}.json"))).unwrap())
+                .unwrap();
+        (std::fs::read(d.join(png)).unwrap(), st["bricks"]["culled"].clone())
+    };
+    let (a, ca) = frame("old.pof");
+    let (b, cb) = frame("up.pof");
+    assert_eq!(ca, cb);
+    assert!(a == b, "frames differ");
+    // A file that is not a POF file: an error naming it, nothing written.
+    std::fs::write(d.join("bad.pof"), b"not a pof file").unwrap();
+    let out = pofvr()
+        .current_dir(d)
+        .args(["pof", "upgrade", "bad.pof", "-o", "bad-up.pof"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("bad.pof"));
+    assert!(!d.join("bad-up.pof").exists());
+}

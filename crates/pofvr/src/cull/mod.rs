@@ -427,8 +427,10 @@ impl Culler<'_> {
             aggressive: self.mode == CullMode::PofSet,
         };
         let mut scratch: Vec<f32> = Vec::new();
-        // (Sub-brick bounds are looked up by other ids: no prefetch for them.)
-        let prefetch = !own.bounds.is_empty() && camera.projection == Projection::Orthographic;
+        let (mut subs, mut sub_ids) = (Vec::new(), Vec::new());
+        let ortho = camera.projection == Projection::Orthographic;
+        // (Sub-brick bounds are looked up by other ids: they are prefetched per brick.)
+        let prefetch = !own.bounds.is_empty() && ortho;
         for (i, &id) in bricks.order.iter().enumerate() {
             // The POF lookups read a few scattered lines of a large table, cold after the
             // ray casting of the previous frame: ask for the next bricks' a batch ahead.
@@ -447,17 +449,22 @@ impl Culler<'_> {
             let ibox = self.grid.index_box(id);
             // Occluded when every pixel whose ray meets the brick is opaque enough; the
             // cheap test over the whole rectangle settles most bricks.
+            let mut hit_region = None;
             let occluded = (rect.y0..rect.y1).all(|y| {
                 let start = (y - tile.y0) as usize * tw + (rect.x0 - tile.x0) as usize;
                 let row = &buffer[start..start + rect.width() as usize];
                 // Only pixels below the threshold need the span test, and a culled brick has
                 // none: a vectorised pass over the row settles most rows, and only a row with
-                // such a pixel is looked at pixel by pixel.
+                // such a pixel is looked at pixel by pixel, where its ray may meet the brick.
                 if all_at_least(row, self.threshold) {
                     return true;
                 }
-                !(rect.x0..)
-                    .zip(row)
+                let xs = hit_region
+                    .get_or_insert_with(|| spans.region(&ibox, None))
+                    .as_ref()
+                    .map_or(rect.x0..rect.x1, |r| r.candidates(y, (rect.x0, rect.x1)));
+                let row = &row[(xs.start - rect.x0) as usize..(xs.end - rect.x0) as usize];
+                !xs.zip(row)
                     .any(|(x, b)| *b < self.threshold && spans.hits(x, y, &ibox))
             });
             if occluded {
@@ -498,8 +505,17 @@ impl Culler<'_> {
                         t: &mut scratch,
                         rect,
                     };
-                    for (cid, cbox) in self.grid.sub_bricks(id, fine) {
-                        self.composite_bound(&sub, &view, cid, &cbox, rect, &mut into);
+                    subs.clear();
+                    subs.extend(self.grid.sub_bricks(id, fine));
+                    if ortho {
+                        // Each lookup is a cache miss in a table of many megabytes: start
+                        // them all before waiting on the first.
+                        sub_ids.clear();
+                        sub_ids.extend(subs.iter().map(|(cid, _)| *cid));
+                        sub.bounds[0].prefetch(&sub_ids, frame.forward);
+                    }
+                    for (cid, cbox) in &subs {
+                        self.composite_bound(&sub, &view, *cid, cbox, rect, &mut into);
                     }
                     // The brick's own bound, where higher, bounds the same stretch of ray.
                     if !own.bounds.is_empty() {
@@ -564,39 +580,35 @@ impl Culler<'_> {
         if !any {
             return;
         }
-        let ortho = matches!(spans, PixelSpans::Orthographic { .. });
+        // Orthographic: each core's pixels are a convex region, solved once per brick; its
+        // runs are nested in the shorter cores' runs: fill each ring between two runs with
+        // its level's bound. (A ray's length inside a box is concave in the pixel position,
+        // so a row of a core is one run: `each_row_of_a_core_footprint_is_one_run`.)
+        let mut regions: [Option<Region>; MAX_LEVELS] = [None; MAX_LEVELS];
+        for (k, r) in regions.iter_mut().enumerate().take(levels.len()) {
+            *r = spans.region(ibox, Some(cores[k]));
+        }
         for y in rect.y0..rect.y1 {
-            let in_core = |x: u32, k: usize| spans.in_core(x, y, ibox, cores[k]);
-            if !ortho {
+            if regions[0].is_none() {
+                // Perspective: the deepest level whose core holds each pixel.
                 for x in rect.x0..rect.x1 {
-                    // The deepest level whose core holds the pixel.
-                    let Some(k) = (0..levels.len()).take_while(|k| in_core(x, *k)).last() else {
+                    let in_core = |k: &usize| spans.in_core(x, y, ibox, cores[*k]);
+                    let Some(k) = (0..levels.len()).take_while(in_core).last() else {
                         continue;
                     };
                     into.add(x..x + 1, y, alphas[k]);
                 }
                 continue;
             }
-            // Orthographic: a ray's length inside the box is concave in the pixel
-            // position, so each row of each core is one run, nested in the
-            // shorter cores' runs: find the ends and fill each ring between two
-            // runs with its level's bound (`each_row_of_a_core_footprint_is_one_run`).
             let mut runs: [Option<(u32, u32)>; MAX_LEVELS] = [None; MAX_LEVELS];
             let mut outer = (rect.x0, rect.x1);
-            for k in 0..levels.len() {
-                let xs = spans
-                    .row_candidates(y, ibox, Some(cores[k]), outer)
-                    .unwrap_or(outer.0..outer.1);
-                let Some(x0) = xs.clone().find(|x| in_core(*x, k)) else {
+            for (k, region) in regions.iter().take(levels.len()).enumerate() {
+                let xs = region.as_ref().map_or(0..0, |r| r.run(y, outer));
+                if xs.is_empty() {
                     break;
-                };
-                let x1 = (x0 + 1..xs.end)
-                    .rev()
-                    .find(|x| in_core(*x, k))
-                    .unwrap_or(x0)
-                    + 1;
-                runs[k] = Some((x0, x1));
-                outer = (x0, x1);
+                }
+                runs[k] = Some((xs.start, xs.end));
+                outer = (xs.start, xs.end);
             }
             for k in 0..levels.len() {
                 let Some((x0, x1)) = runs[k] else { break };
@@ -736,6 +748,82 @@ const PREFETCH: usize = 16;
 
 /// Opacity buffers [`Culler::cull`] reuses.
 static BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+
+/// A convex region of the image, `c0 + cy·y + cx·x ≥ 0` for each of its half-planes, with
+/// pixel centres at integer `(x, y)` (see [`PixelSpans::region`]).
+#[derive(Default, Clone, Copy)]
+struct Region {
+    /// `(c0, cy, cx, 1/cx)`; `cx` is 0 for a half-plane of rows only.
+    planes: [(f64, f64, f64, f64); 16],
+    n: usize,
+}
+
+/// How far inside its bounds a pixel must be to count as surely in a [`Region`], in pixels:
+/// far above the rounding of the solve (about 1e-12 of the coordinates), far below a pixel.
+const REGION_MARGIN: f64 = 1e-6;
+
+impl Region {
+    /// Adds `c0 + cy·y + cx·x ≥ 0`, with `inv` = `1/cx` (precomputed per frame: the
+    /// slopes are the view's, not the box's).
+    fn push(&mut self, c0: f64, cy: f64, cx: f64, inv: f64) {
+        self.planes[self.n] = (c0, cy, cx, inv);
+        self.n += 1;
+    }
+
+    /// The real interval of row `y` inside the region: empty when `lo > hi`, NaN ends
+    /// when the solve failed (which finite cameras never make it do).
+    #[inline]
+    fn interval(&self, y: u32) -> (f64, f64) {
+        let fy = f64::from(y);
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for &(c0, cy, cx, inv) in &self.planes[..self.n] {
+            let c = c0 + cy * fy;
+            if cx > 0.0 {
+                lo = lo.max(-c * inv);
+            } else if cx < 0.0 {
+                hi = hi.min(-c * inv);
+            } else if c < 0.0 {
+                return (f64::INFINITY, f64::NEG_INFINITY);
+            } else if c.is_nan() {
+                return (f64::NAN, f64::NAN);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// The pixels of row `y`, clipped to `x0..x1`, that are surely inside: the exact test
+    /// passes each of them.
+    #[inline]
+    fn run(&self, y: u32, (x0, x1): (u32, u32)) -> std::ops::Range<u32> {
+        let (lo, hi) = self.interval(y);
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        let clip = |x: f64| x.clamp(f64::from(x0), f64::from(x1)) as u32;
+        // (NaN ends make an empty run, which is always safe.)
+        if lo.is_nan() || hi.is_nan() || lo > hi {
+            return x0..x0;
+        }
+        let (a, b) = (
+            clip((lo + REGION_MARGIN).ceil()),
+            clip((hi - REGION_MARGIN).floor() + 1.0),
+        );
+        a..b.max(a)
+    }
+
+    /// The pixels of row `y` that may be inside, widened by a pixel each side and clipped
+    /// to `x0..x1`: the exact test passes none outside them.
+    fn candidates(&self, y: u32, (x0, x1): (u32, u32)) -> std::ops::Range<u32> {
+        let (lo, hi) = self.interval(y);
+        if lo.is_nan() || hi.is_nan() {
+            return x0..x1;
+        }
+        if lo > hi {
+            return x0..x0;
+        }
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        let clip = |x: f64| x.clamp(f64::from(x0), f64::from(x1)) as u32;
+        clip(lo.floor() - 1.0)..clip(hi.ceil() + 2.0)
+    }
+}
 
 /// True when every value of `row` is at least `threshold`: in blocks of eight without an
 /// early exit, which compile to vector compares, the tail as one more (overlapping) block.
@@ -878,22 +966,14 @@ impl<'a> PixelSpans<'a> {
         }
     }
 
-    /// Orthographic views: the pixels of row `y` that may pass [`PixelSpans::hits`]
-    /// (`core` is `None`) or [`PixelSpans::in_core`] (`Some(core)`) for `b`, widened by a
-    /// pixel each side and clipped to `x0..x1`; `None` for perspective views.
+    /// Orthographic views: the pixels that pass [`PixelSpans::hits`] (`core` is `None`) or
+    /// [`PixelSpans::in_core`] (`Some(core)`) for `b`, as a convex region of the image;
+    /// `None` for perspective views.
     ///
-    /// Why: along a row the near and far plane crossings of each slab are affine in x, so
-    /// both tests reduce to a handful of half-lines; the per-pixel tests then run on the
-    /// two or three candidates at each end instead of the whole footprint row. The pixel of
-    /// margin covers the rounding of this solve (far below a pixel), so the pixels the
-    /// exact tests pass are all inside the range.
-    fn row_candidates(
-        &self,
-        y: u32,
-        b: &crate::brick::IndexBox,
-        core: Option<f32>,
-        (x0, x1): (u32, u32),
-    ) -> Option<std::ops::Range<u32>> {
+    /// Why: the near and far plane crossings of each slab are affine in the pixel position,
+    /// so both tests are a conjunction of a dozen half-planes. Solving them once per box
+    /// turns every row's run into a few multiply-adds instead of span tests per pixel.
+    fn region(&self, b: &crate::brick::IndexBox, core: Option<f32>) -> Option<Region> {
         let PixelSpans::Orthographic {
             o00,
             du,
@@ -907,61 +987,54 @@ impl<'a> PixelSpans<'a> {
         else {
             return None;
         };
-        let fy = f64::from(y);
         // The least length, and the least far crossing, the test asks for.
         let need = core.map_or(-SPAN_SLACK, |c| f64::from(c) + SPAN_SLACK);
-        let (mut lo_x, mut hi_x) = (f64::NEG_INFINITY, f64::INFINITY);
-        // c0 + c1·x ≥ 0, with `inv` = 1/c1 (the slopes are the frame's, so their inverses
-        // are too: no division per row).
-        let mut half_line = |c0: f64, c1: f64, inv: f64| {
-            if c1 == 0.0 {
-                if c0 < 0.0 {
-                    hi_x = f64::NEG_INFINITY;
-                }
-            } else if c1 > 0.0 {
-                lo_x = lo_x.max(-c0 * inv);
-            } else {
-                hi_x = hi_x.min(-c0 * inv);
-            }
-        };
-        // (near intercept, far intercept, slope) of each slab's crossings.
-        let mut slabs = [(0.0, 0.0, 0usize); 3];
+        let mut r = Region::default();
+        // Near and far crossings of each slab at x = 0 as (intercept, y slope), and its
+        // x slope.
+        let mut slabs = [((0.0, 0.0), (0.0, 0.0), 0usize); 3];
         let mut n = 0;
         for a in 0..3 {
-            let o = o00[a] + fy * dv[a];
             let (lo, hi) = (f64::from(b.lo[a]), f64::from(b.hi[a]));
             if inv_d[a] == 0.0 {
-                // Parallel to the slab: o(x) = o + x·du must lie inside it, by the slack
-                // outside (hits) or inside (core).
+                // Parallel to the slab: o(x, y) = o00 + x·du + y·dv must lie inside it, by
+                // the slack outside (hits) or inside (core).
                 let e = if core.is_some() {
                     SPAN_SLACK
                 } else {
                     -SPAN_SLACK
                 };
-                half_line(o - (lo + e), du[a], inv_du[a]);
-                half_line((hi - e) - o, -du[a], -inv_du[a]);
+                r.push(o00[a] - (lo + e), dv[a], du[a], inv_du[a]);
+                r.push((hi - e) - o00[a], -dv[a], -du[a], -inv_du[a]);
                 continue;
             }
-            let (ta, tb) = ((lo - o) * inv_d[a], (hi - o) * inv_d[a]);
-            slabs[n] = (ta.min(tb), ta.max(tb), a);
+            let ty = -dv[a] * inv_d[a];
+            let (ta, tb) = ((lo - o00[a]) * inv_d[a], (hi - o00[a]) * inv_d[a]);
+            slabs[n] = ((ta.min(tb), ty), (ta.max(tb), ty), a);
             n += 1;
         }
-        for &(_, far_a, a) in &slabs[..n] {
-            half_line(far_a - need, slope[a], inv_slope[a][a]);
-            for &(near_b, _, b) in &slabs[..n] {
-                half_line(far_a - near_b - need, slope[a] - slope[b], inv_slope[a][b]);
+        for &(_, (far, far_y), a) in &slabs[..n] {
+            r.push(far - need, far_y, slope[a], inv_slope[a][a]);
+            for &((near, near_y), _, b) in &slabs[..n] {
+                let cx = if a == b { 0.0 } else { slope[a] - slope[b] };
+                r.push(far - near - need, far_y - near_y, cx, inv_slope[a][b]);
             }
         }
-        if lo_x.is_nan() || hi_x.is_nan() {
-            // Cannot happen with finite cameras; the whole row keeps the tests exact anyway.
-            return Some(x0..x1);
-        }
-        if lo_x > hi_x {
-            return Some(x0..x0);
-        }
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-        let clip = |x: f64| x.clamp(f64::from(x0), f64::from(x1)) as u32;
-        Some(clip(lo_x.floor() - 1.0)..clip(hi_x.ceil() + 2.0))
+        Some(r)
+    }
+
+    /// Orthographic views: the pixels of row `y` that may pass [`PixelSpans::hits`]
+    /// (`core` is `None`) or [`PixelSpans::in_core`] (`Some(core)`) for `b`, widened by a
+    /// pixel each side and clipped to `x0..x1`; `None` for perspective views.
+    #[cfg(test)]
+    fn row_candidates(
+        &self,
+        y: u32,
+        b: &crate::brick::IndexBox,
+        core: Option<f32>,
+        (x0, x1): (u32, u32),
+    ) -> Option<std::ops::Range<u32>> {
+        Some(self.region(b, core)?.candidates(y, (x0, x1)))
     }
 
     /// True when the pixel's ray may take a sample in `b` (conservatively).

@@ -235,11 +235,13 @@ fn each_row_of_a_core_footprint_is_one_run() {
 }
 
 #[test]
-fn row_candidates_hold_every_pixel_the_exact_tests_pass() {
+fn row_candidates_hold_every_pixel_the_exact_tests_pass_and_runs_only_such_pixels() {
     // The culler only tests the candidates of a row; a pixel outside them that passes the
-    // exact test would be a brick wrongly culled or opacity wrongly left out.
+    // exact test would be a brick wrongly culled. It fills runs without a test per pixel;
+    // a pixel in a run that fails the exact test would be opacity wrongly added.
     let j = job(40, &[1.0, 1.0]);
     let (mut tight, mut rows, mut passing) = (0usize, 0usize, 0usize);
+    let mut exact_runs = 0usize;
     for (az, el) in [
         (0.0, 0.0),
         (37.0, -25.0),
@@ -281,12 +283,33 @@ fn row_candidates_hold_every_pixel_the_exact_tests_pass() {
                         .count();
                     tight += usize::from(xs.len() <= n + 4);
                     rows += 1;
+                    // The runs the culler fills: only pixels the exact test passes, and
+                    // all of them but where a pixel centre sits on the region's edge.
+                    let run = spans
+                        .region(&ibox, core)
+                        .expect("orthographic")
+                        .run(y, (rect.x0, rect.x1));
+                    for x in run.clone() {
+                        let pass = match core {
+                            None => spans.hits(x, y, &ibox),
+                            Some(l) => spans.in_core(x, y, &ibox, l),
+                        };
+                        assert!(
+                            pass,
+                            "view {az},{el} brick {id:?} core {core:?} row {y}: {x} in run {run:?} fails"
+                        );
+                    }
+                    exact_runs += usize::from(run.len() == n);
                 }
             }
         }
     }
     assert!(passing > 10_000, "only {passing} passing pixels");
     assert!(tight * 100 >= rows * 99, "{tight} of {rows} rows tight");
+    assert!(
+        exact_runs * 1000 >= rows * 999,
+        "{exact_runs} of {rows} runs hold every passing pixel"
+    );
     // Perspective views have no candidates: the culler tests every pixel.
     let c = cam(&j, 30.0, 20.0, Projection::Perspective);
     let frame = c.frame();

@@ -215,6 +215,7 @@ pub(super) fn build(
             PofMethod::Sampled => settings.phases as u32,
         },
         joint: anchor,
+        cell_major: settings.encoding != super::Encoding::Cubic,
     };
 
     // Bricks whose value range touches a non-zero bin of some basis.
@@ -454,9 +455,7 @@ impl<'a> Ctx<'a> {
         }
         let views = self.views.map(|v| v as u32);
         let mut out = Vec::with_capacity(self.record_len);
-        for t in &tables {
-            encoding::encode(self.encoding, t, views, &mut out);
-        }
+        encoding::encode_record(self.encoding, &tables, views, true, &mut out);
         out.resize(self.record_len, 0);
         Some(out)
     }

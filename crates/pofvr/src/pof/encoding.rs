@@ -126,6 +126,78 @@ fn quantise(a: f32, q: f32) -> u32 {
     k
 }
 
+/// Appends one record: the encodings of `tables` (each as for [`encode`]), function after
+/// function, or, `cell_major` with a table encoding, cell after cell with every function's
+/// value of a cell side by side.
+pub(crate) fn encode_record(
+    enc: Encoding,
+    tables: &[Vec<f32>],
+    views: [u32; 2],
+    cell_major: bool,
+    out: &mut Vec<u8>,
+) {
+    if !cell_major || enc == Encoding::Cubic {
+        for t in tables {
+            encode(enc, t, views, out);
+        }
+        return;
+    }
+    let cells = views[0] as usize * views[1] as usize;
+    let mut one = Vec::with_capacity(4);
+    for c in 0..cells {
+        for t in tables {
+            one.clear();
+            encode(enc, &t[c..=c], [1, 1], &mut one);
+            out.extend_from_slice(&one);
+        }
+    }
+}
+
+/// Where in a record of `funcs` functions the value of function `f` in view cell `cell`
+/// lies (the whole function for the cubic, whose value needs all its coefficients).
+pub(crate) fn value_range(
+    enc: Encoding,
+    funcs: usize,
+    f: usize,
+    views: [u32; 2],
+    (i, j): (usize, usize),
+    cell_major: bool,
+) -> std::ops::Range<usize> {
+    let c = i * views[1] as usize + j;
+    let size = enc.function_bytes(views);
+    let elem = match enc {
+        Encoding::Table => 4,
+        Encoding::U16 => 2,
+        Encoding::U8 => 1,
+        Encoding::Cubic => return f * size..(f + 1) * size,
+    };
+    let at = if cell_major {
+        (c * funcs + f) * elem
+    } else {
+        f * size + c * elem
+    };
+    at..at + elem
+}
+
+/// The stored value of function `f` of a record of `funcs` functions in view cell `cell`.
+#[inline]
+pub(crate) fn decode_in_record(
+    enc: Encoding,
+    rec: &[u8],
+    funcs: usize,
+    f: usize,
+    views: [u32; 2],
+    cell: (usize, usize),
+    cell_major: bool,
+) -> f32 {
+    let r = value_range(enc, funcs, f, views, cell, cell_major);
+    match enc {
+        Encoding::Cubic => decode(enc, &rec[r], views, cell),
+        // The range holds just this cell's value.
+        _ => decode(enc, &rec[r], [1, 1], (0, 0)),
+    }
+}
+
 /// The stored opacity of view cell `(i, j)`.
 pub(crate) fn decode(enc: Encoding, bytes: &[u8], views: [u32; 2], (i, j): (usize, usize)) -> f32 {
     let c = i * views[1] as usize + j;

@@ -10,17 +10,21 @@
 //! 104  index offset u64, index length u64, data offset u64, data length u64, record length u64
 //! 144  index CRC32 u32, data CRC32 u32, phases u32, joint basis count u32 (0: none)
 //! 160  joint anchor weights [f32; 16], zeros …
+//! 224  record layout u8: 0 function-major, 1 cell-major (version 4), zeros …
 //! 252  header CRC32 u32 (of bytes 0..252)
 //! 256  index: one u32 per brick, the record slot or u32::MAX for a brick empty for every basis
 //!      data: slot × record length; a record is p encoded POFs, then (with sets) for each
 //!      basis s the p−1 other bases' POFs at s's q_min, then (with a joint anchor) the
-//!      joint POF, padded to 8 bytes
+//!      joint POF, padded to 8 bytes; cell-major records hold the same values ordered by
+//!      view cell first, then function
 //! ```
 //!
 //! Version 2 added the method and phases; version 1 files (zeros there) are read as the
 //! bound method. The version was bumped, although the layout is unchanged, so that an older
 //! pofvr refuses a sampled table rather than report it as a rigorous bound. Version 3 added
-//! the joint POF (an older pofvr would misread its records).
+//! the joint POF (an older pofvr would misread its records). Version 4 added cell-major
+//! records for the table encodings: a lookup reads every function's value of a view cell
+//! from one cache line instead of one line (and often one page) per function.
 
 use std::path::Path;
 
@@ -30,10 +34,12 @@ use super::{Encoding, PofError, PofMeta, PofMethod, PofTable};
 use crate::volume::DataType;
 
 pub(crate) const MAGIC: &[u8; 8] = b"POFVRTBL";
-pub(crate) const VERSION: u32 = 3;
+pub(crate) const VERSION: u32 = 4;
 /// Oldest version still read.
 const MIN_VERSION: u32 = 1;
 pub(crate) const HEADER_LEN: usize = 256;
+/// Header byte of the record layout (version 4): 0 function-major, 1 cell-major.
+const LAYOUT_AT: usize = 224;
 
 /// The file's bytes: built in memory or mapped from disk.
 pub(crate) enum Bytes {
@@ -119,6 +125,7 @@ pub(crate) fn assemble(meta: &PofMeta, index: &[u32], data: &[u8], record_len: u
         out.extend_from_slice(&w.to_le_bytes());
     }
     out.resize(HEADER_LEN - 4, 0);
+    out[LAYOUT_AT] = u8::from(meta.cell_major);
     let hcrc = crc32fast::hash(&out);
     out.extend_from_slice(&hcrc.to_le_bytes());
     out.extend_from_slice(&index_bytes);
@@ -193,8 +200,15 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
         method,
         phases,
         joint: None,
+        cell_major: version >= 4 && b[LAYOUT_AT] == 1,
     };
     let mut meta = meta;
+    if version >= 4 && (b[LAYOUT_AT] > 1 || (meta.cell_major && encoding == Encoding::Cubic)) {
+        return Err(fmt(format!(
+            "record layout code {} for encoding {encoding}",
+            b[LAYOUT_AT]
+        )));
+    }
     if version >= 3 {
         let n = u32_at(156) as usize;
         if n > super::JOINT_MAX_BASES || (n != 0 && n != meta.basis_count as usize) {

@@ -314,6 +314,10 @@ pub struct PofMeta {
     pub phases: u32,
     /// The anchor weights of the joint POF, when the file has one (format version 3).
     pub joint: Option<Vec<f32>>,
+    /// Records hold each view cell's values of every function side by side (format version
+    /// 4, table encodings), so that a lookup reads one cache line instead of one per
+    /// function; otherwise each function's cells are contiguous.
+    pub cell_major: bool,
 }
 
 impl PofMeta {
@@ -400,6 +404,60 @@ impl PofTable {
     pub fn save(&self, path: &Path) -> Result<(), PofError> {
         crate::io::write_bytes_atomic(path, self.bytes.as_slice())?;
         Ok(())
+    }
+
+    /// The same table with its records in the other layout (`cell_major` or function-major):
+    /// the same values, byte for byte, in another order. Files of format version 3 and
+    /// older are function-major; `pofvr pof upgrade` rewrites them cell-major, which
+    /// lookups read faster.
+    #[must_use]
+    pub fn relayout(&self, cell_major: bool) -> PofTable {
+        let mut meta = self.meta.clone();
+        meta.cell_major = cell_major && meta.encoding != Encoding::Cubic;
+        let b = self.bytes.as_slice();
+        let index: Vec<u32> = (0..meta.brick_count as usize)
+            .map(|i| {
+                let at = self.index_offset + 4 * i;
+                u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+            })
+            .collect();
+        let mut data = b[self.data_offset..].to_vec();
+        let funcs = meta.functions();
+        let views = meta.views;
+        let same = meta.cell_major == self.meta.cell_major;
+        for (s, out) in data
+            .chunks_exact_mut(self.record_len.max(1))
+            .enumerate()
+            .filter(|_| !same)
+        {
+            let rec = self.record(s);
+            for i in 0..views[0] as usize {
+                for j in 0..views[1] as usize {
+                    for f in 0..funcs {
+                        let from = encoding::value_range(
+                            meta.encoding,
+                            funcs,
+                            f,
+                            views,
+                            (i, j),
+                            self.meta.cell_major,
+                        );
+                        let to = encoding::value_range(
+                            meta.encoding,
+                            funcs,
+                            f,
+                            views,
+                            (i, j),
+                            meta.cell_major,
+                        );
+                        out[to].copy_from_slice(&rec[from]);
+                    }
+                }
+            }
+        }
+        let image = file::assemble(&meta, &index, &data, self.record_len);
+        file::from_bytes(file::Bytes::Owned(image), self.source.clone())
+            .expect("a valid table relaid out is valid")
     }
 
     /// Memory-maps `path`, checks every section's CRC and that it was built for this
@@ -581,12 +639,20 @@ impl PofTable {
             // Sets of basis s: the p−1 other bases in order, after the p conservative POFs.
             Some(s) => p + s * (p - 1) + if basis < s { basis } else { basis - 1 },
         };
-        let size = self.meta.encoding.function_bytes(self.meta.views);
-        encoding::decode(
+        self.function_value(rec, idx, cell)
+    }
+
+    /// Decoded value of encoded function `idx` of record `rec` in view cell `cell`.
+    #[inline]
+    fn function_value(&self, rec: &[u8], idx: usize, cell: (usize, usize)) -> f32 {
+        encoding::decode_in_record(
             self.meta.encoding,
-            &rec[idx * size..(idx + 1) * size],
+            rec,
+            self.meta.functions(),
+            idx,
             self.meta.views,
             cell,
+            self.meta.cell_major,
         )
     }
 
@@ -665,15 +731,9 @@ impl PofTable {
         if !(c.is_finite() && c > 0.0) {
             return 0.0;
         }
-        let idx = self.meta.functions() - 1;
-        let size = self.meta.encoding.function_bytes(self.meta.views);
-        let aj = encoding::decode(
-            self.meta.encoding,
-            &rec[idx * size..(idx + 1) * size],
-            self.meta.views,
-            cell,
-        )
-        .clamp(0.0, ALPHA_MAX);
+        let aj = self
+            .function_value(rec, self.meta.functions() - 1, cell)
+            .clamp(0.0, ALPHA_MAX);
         if c == 1.0 || aj <= 0.0 {
             // The anchor's own weights (the common case): the joint POF as stored.
             return aj;
@@ -719,20 +779,30 @@ impl PofTable {
     /// Starts loading the cache lines [`PofTable::opacity`] reads for each of `bricks`
     /// along `view_dir` (each function's value in the direction's cell), without waiting.
     pub fn prefetch(&self, bricks: &[BrickId], view_dir: DVec3) {
-        let (i, j) = self.cell_of(view_dir);
-        let c = i * self.meta.views[1] as usize + j;
-        let at = match self.meta.encoding {
-            Encoding::Table => 4 * c,
-            Encoding::U16 => 2 * c,
-            Encoding::U8 => c,
-            Encoding::Cubic => 0,
+        let cell = self.cell_of_cached(view_dir);
+        let funcs = self.meta.functions();
+        let range = |f: usize| {
+            encoding::value_range(
+                self.meta.encoding,
+                funcs,
+                f,
+                self.meta.views,
+                cell,
+                self.meta.cell_major,
+            )
         };
-        let size = self.meta.encoding.function_bytes(self.meta.views);
+        // The first byte of each function's value in the cell; in a cell-major record they
+        // are side by side, so the first and last byte cover them (across a line boundary).
+        let at: Vec<usize> = if self.meta.cell_major {
+            vec![range(0).start, range(funcs - 1).end - 1]
+        } else {
+            (0..funcs).map(|f| range(f).start).collect()
+        };
         for &b in bricks {
             if let Some(s) = self.slot(b) {
                 let rec = self.record(s);
-                for f in 0..self.meta.functions() {
-                    if let Some(x) = rec.get(f * size + at) {
+                for &i in &at {
+                    if let Some(x) = rec.get(i) {
                         prefetch_line(x);
                     }
                 }

@@ -703,7 +703,10 @@ fn files_of_format_version_1_are_read_as_bound_and_unknown_versions_refused() {
     );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("head.pof");
-    t.save(&path).unwrap();
+    // Versions before 4 laid records out function by function.
+    let old = t.relayout(false);
+    assert!(t.meta().cell_major && !old.meta().cell_major);
+    old.save(&path).unwrap();
     let good = std::fs::read(&path).unwrap();
     let with = |version: u32| {
         let mut b = good.clone();
@@ -728,9 +731,9 @@ fn files_of_format_version_1_are_read_as_bound_and_unknown_versions_refused() {
             t.opacity(id, d, &[1.0, 1.0], PofMode::Conservative)
         );
     }
-    let e = PofTable::open(&with(4)).unwrap_err().to_string();
+    let e = PofTable::open(&with(5)).unwrap_err().to_string();
     assert!(
-        e.contains("v4.pof") && e.contains("format version 4"),
+        e.contains("v5.pof") && e.contains("format version 5"),
         "{e}"
     );
 }
@@ -801,5 +804,104 @@ fn joint_pof_lifts_lookups_and_stays_below_brute_force_for_any_weights() {
             back.opacity(id, d, &[0.7, 2.0], PofMode::Conservative),
             with.opacity(id, d, &[0.7, 2.0], PofMode::Conservative)
         );
+    }
+}
+
+#[test]
+fn both_record_layouts_give_the_same_lookups_in_every_encoding() {
+    // Cell-major records (format 4) and function-major ones (formats 1 to 3) hold the same
+    // values; a layout mix-up would read another function's or another cell's value.
+    let s = phantom(64);
+    let mut rng = seeded_rng();
+    for encoding in Encoding::ALL {
+        let t = table(
+            &s,
+            &PofSettings {
+                encoding,
+                sets: true,
+                ..small_views()
+            },
+        );
+        let old = t.relayout(false);
+        let back = old.relayout(true);
+        assert_eq!(t.meta().cell_major, encoding != Encoding::Cubic);
+        assert!(!old.meta().cell_major);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.pof");
+        old.save(&path).unwrap();
+        let reread = PofTable::open(&path).unwrap();
+        assert!(!reread.meta().cell_major);
+        let mut differ = 0;
+        for _ in 0..300 {
+            let id = BrickId(rng.gen_range(0..s.grid.len() as u32));
+            let d = random_dir(&mut rng);
+            let w = [rng.gen_range(0.0..2.0f32), rng.gen_range(0.0..2.0f32)];
+            for mode in [PofMode::Conservative, PofMode::Sets] {
+                let a = t.opacity(id, d, &w, mode);
+                assert_eq!(
+                    a,
+                    reread.opacity(id, d, &w, mode),
+                    "{encoding} {id:?} {w:?}"
+                );
+                assert_eq!(a, back.opacity(id, d, &w, mode), "{encoding} {id:?} {w:?}");
+            }
+        }
+        let v = t.meta().views;
+        for id in s.grid.ids() {
+            for cell in (0..v[0] as usize).flat_map(|i| (0..v[1] as usize).map(move |j| (i, j))) {
+                let per_basis = t.basis_opacities(id, cell);
+                assert_eq!(per_basis, reread.basis_opacities(id, cell), "{encoding}");
+                differ += usize::from(per_basis[0] != per_basis[1]);
+            }
+        }
+        // Bases that differ: a swap of functions would show.
+        assert!(
+            differ > 50,
+            "{encoding}: bases differ in only {differ} cells"
+        );
+    }
+}
+
+#[test]
+fn record_values_are_read_where_the_record_writer_put_them() {
+    // Distinct values per function and cell: a reader that takes another function's or
+    // another cell's value differs from the writer's.
+    let views = [5u32, 7];
+    let cells = 35;
+    let funcs = 4;
+    let tables: Vec<Vec<f32>> = (0..funcs)
+        .map(|f| {
+            (0..cells)
+                .map(|c| (1 + f * cells + c) as f32 / 200.0)
+                .collect()
+        })
+        .collect();
+    for enc in Encoding::ALL {
+        for cell_major in [false, true] {
+            let mut rec = Vec::new();
+            encoding::encode_record(enc, &tables, views, cell_major, &mut rec);
+            assert_eq!(rec.len(), funcs * enc.function_bytes(views));
+            for (f, t) in tables.iter().enumerate() {
+                let mut alone = Vec::new();
+                encoding::encode(enc, t, views, &mut alone);
+                for (c, v) in t.iter().enumerate() {
+                    let cell = (c / 7, c % 7);
+                    let got = encoding::decode_in_record(
+                        enc,
+                        &rec,
+                        funcs,
+                        f,
+                        views,
+                        cell,
+                        cell_major && enc != Encoding::Cubic,
+                    );
+                    let want = encoding::decode(enc, &alone, views, cell);
+                    assert_eq!(got, want, "{enc} cell-major {cell_major} f {f} c {c}");
+                    if enc != Encoding::Cubic {
+                        assert!((got - v).abs() < 0.01, "{enc} f {f} c {c}: {got}");
+                    }
+                }
+            }
+        }
     }
 }
