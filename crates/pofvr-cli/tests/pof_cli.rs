@@ -311,7 +311,11 @@ fn pof_upgrade_rewrites_an_older_layout_with_the_same_frames() {
             .args(["pof", "info", f, "--json"])
             .output()
             .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
     };
     assert_eq!(info("old.pof")["layout"], "function-major");
@@ -320,7 +324,11 @@ fn pof_upgrade_rewrites_an_older_layout_with_the_same_frames() {
         .args(["pof", "upgrade", "old.pof", "-o", "up.pof"])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert_eq!(info("up.pof")["layout"], "cell-major");
     // The upgraded file is the one a fresh build writes, byte for byte.
     assert_eq!(
@@ -349,11 +357,17 @@ fn pof_upgrade_rewrites_an_older_layout_with_the_same_frames() {
             ])
             .output()
             .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let st: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(d.join(format!("{pof}.json"))).unwrap())
-                .unwrap();
-        (std::fs::read(d.join(png)).unwrap(), st["bricks"]["culled"].clone())
+            serde_json::from_slice(&std::fs::read(d.join(format!("{pof}.json"))).unwrap()).unwrap();
+        (
+            std::fs::read(d.join(png)).unwrap(),
+            st["bricks"]["culled"].clone(),
+        )
     };
     let (a, ca) = frame("old.pof");
     let (b, cb) = frame("up.pof");

@@ -14,6 +14,7 @@ mod test;
 use std::time::Instant;
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use crate::brick::{BrickGrid, BrickId};
 use crate::render::{Camera, IndexRay, PixelRect, Projection, RayCaster, SampledTf, ViewFrame};
@@ -394,6 +395,44 @@ impl Culler<'_> {
     #[must_use]
     pub fn cull(&self, camera: &Camera, bricks: &FrameBricks, tile: PixelRect) -> CullResult {
         let start = Instant::now();
+        let strips = strips_of(tile, self.mode);
+        if strips.len() == 1 {
+            let mut out = self.cull_strip(camera, bricks, tile);
+            out.cull_ms = start.elapsed().as_secs_f64() * 1e3;
+            return out;
+        }
+        // Culling walks the bricks in order over one buffer, so it runs on one core; cut into
+        // strips, each culled as a tile of its own (as the ranks' tiles are), it runs on all
+        // of them. A brick is visible when it is in any strip, culled when in none.
+        let parts: Vec<CullResult> = strips
+            .par_iter()
+            .map(|s| self.cull_strip(camera, bricks, *s))
+            .collect();
+        const CULLED: u8 = 1;
+        const VISIBLE: u8 = 2;
+        let mut state = vec![0u8; self.grid.len()];
+        for p in &parts {
+            for id in &p.culled {
+                state[id.index()] = state[id.index()].max(CULLED);
+            }
+            for id in &p.visible {
+                state[id.index()] = VISIBLE;
+            }
+        }
+        let mut out = CullResult::default();
+        for &id in &bricks.order {
+            match state[id.index()] {
+                VISIBLE => out.visible.push(id),
+                CULLED => out.culled.push(id),
+                _ => {}
+            }
+        }
+        out.cull_ms = start.elapsed().as_secs_f64() * 1e3;
+        out
+    }
+
+    /// [`Culler::cull`] over one strip of the tile, on this thread.
+    fn cull_strip(&self, camera: &Camera, bricks: &FrameBricks, tile: PixelRect) -> CullResult {
         let frame = camera.frame();
         let tw = tile.width() as usize;
         // A frame's buffer is megabytes; a fresh allocation each frame would be fresh pages,
@@ -431,17 +470,25 @@ impl Culler<'_> {
         let ortho = camera.projection == Projection::Orthographic;
         // (Sub-brick bounds are looked up by other ids: they are prefetched per brick.)
         let prefetch = !own.bounds.is_empty() && ortho;
-        for (i, &id) in bricks.order.iter().enumerate() {
+        // The bricks over this tile, in order (with their footprint in it).
+        let mine: Vec<(BrickId, PixelRect)> = bricks
+            .order
+            .iter()
+            .filter_map(|&id| Some((id, bricks.footprints[id.index()]?.intersect(&tile)?)))
+            .collect();
+        let ids: Vec<BrickId> = if prefetch {
+            mine.iter().map(|(id, _)| *id).collect()
+        } else {
+            Vec::new()
+        };
+        for (i, &(id, rect)) in mine.iter().enumerate() {
             // The POF lookups read a few scattered lines of a large table, cold after the
             // ray casting of the previous frame: ask for the next bricks' a batch ahead.
             if prefetch && i % PREFETCH == 0 {
-                if let (Some(b), Some(next)) = (self.bounds, bricks.order.get(i + PREFETCH..)) {
+                if let (Some(b), Some(next)) = (self.bounds, ids.get(i + PREFETCH..)) {
                     b.prefetch(&next[..next.len().min(PREFETCH)], frame.forward);
                 }
             }
-            let Some(rect) = bricks.footprints[id.index()].and_then(|r| r.intersect(&tile)) else {
-                continue;
-            };
             if self.mode == CullMode::None {
                 out.visible.push(id);
                 continue;
@@ -546,7 +593,6 @@ impl Culler<'_> {
             pool.push(buffer);
         }
         drop(pool);
-        out.cull_ms = start.elapsed().as_secs_f64() * 1e3;
         out
     }
 
@@ -738,6 +784,27 @@ impl Sink<'_> {
             }
         }
     }
+}
+
+/// Rows of the strips a tile is culled in, in parallel (POF modes): enough that a brick's
+/// footprint seldom straddles two, few enough that a 512² frame keeps two cores busy. Fixed,
+/// not one strip per thread, so that what is culled does not depend on the machine.
+const STRIP_ROWS: u32 = 64;
+
+/// The strips `tile` is culled in: the whole tile for the modes that gain nothing (`none`)
+/// or must stay sequential (`exact`, the oracle), and for small tiles.
+fn strips_of(tile: PixelRect, mode: CullMode) -> Vec<PixelRect> {
+    if !matches!(mode, CullMode::Pof | CullMode::PofSet) || tile.height() < 2 * STRIP_ROWS {
+        return vec![tile];
+    }
+    let n = tile.height().div_ceil(STRIP_ROWS);
+    (0..n)
+        .map(|k| PixelRect {
+            y0: tile.y0 + k * tile.height() / n,
+            y1: tile.y0 + (k + 1) * tile.height() / n,
+            ..tile
+        })
+        .collect()
 }
 
 /// The most POF levels (core lengths) culling uses.

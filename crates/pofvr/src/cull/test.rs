@@ -519,3 +519,46 @@ fn sub_brick_case(weights: &[f32]) -> usize {
     }
     culled
 }
+
+#[test]
+fn strips_tile_the_tile_and_strip_culling_keeps_the_threshold_rule() {
+    let tile = PixelRect {
+        x0: 3,
+        y0: 5,
+        x1: 203,
+        y1: 205,
+    };
+    let strips = strips_of(tile, CullMode::Pof);
+    assert_eq!(strips.len(), 4);
+    assert_eq!(strips[0].y0, tile.y0);
+    assert_eq!(strips[3].y1, tile.y1);
+    for w in strips.windows(2) {
+        assert_eq!(w[0].y1, w[1].y0);
+    }
+    assert!(strips.iter().all(|s| s.x0 == tile.x0 && s.x1 == tile.x1));
+    assert!(strips.iter().all(|s| s.height() <= STRIP_ROWS));
+    // The oracle stays sequential; small tiles stay whole.
+    assert_eq!(strips_of(tile, CullMode::Exact), vec![tile]);
+    let small = PixelRect { y1: 100, ..tile };
+    assert_eq!(strips_of(small, CullMode::PofSet), vec![small]);
+
+    // A frame tall enough to be culled in strips, against the reference.
+    let j = job(64, &[3.0, 1.0]);
+    let table = pof_table(&j, &j.grid, None);
+    let mut culled = 0;
+    for (az, el, p) in LEVEL_VIEWS {
+        let c = Camera::orbit(&j.volume, az, el, 200, 200, p);
+        let (reference, _) = render_reference(&j, &c);
+        for mode in [CullMode::Pof, CullMode::PofSet] {
+            let opts = FrameOptions {
+                cull: mode,
+                cull_threshold: 0.95,
+                ..FrameOptions::default()
+            };
+            let (img, st) = render_frame(&j, Some(&table), &c, &opts).unwrap();
+            assert_conservative(&reference, &img, 0.95, &format!("{mode:?} {az},{el}"));
+            culled += st.bricks.culled;
+        }
+    }
+    assert!(culled > 0, "strip culling culls the phantom's inside");
+}
