@@ -207,6 +207,12 @@ pub(crate) struct FrameArgs {
     /// > default: hilbert
     #[arg(long, default_value = "hilbert")]
     pub(crate) curve: String,
+    /// Owners per brick: 1 (the paper) renders each visible brick on the rank it was dealt
+    /// to; 2 holds every brick on two ranks and gives it, each frame, to the less loaded
+    /// one (better balance for twice the brick memory). The frame is the same.
+    /// > default: 1
+    #[arg(long, default_value_t = 1)]
+    pub(crate) replicas: usize,
 }
 
 #[derive(Args, Debug)]

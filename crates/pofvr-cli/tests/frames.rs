@@ -116,3 +116,53 @@ fn zero_frames_and_a_reference_with_a_sequence_are_refused() {
     }
     assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none());
 }
+
+#[test]
+fn replicas_give_the_same_frame_and_more_replicas_than_ranks_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let render = |ranks: &str, replicas: &str, raw: &str| {
+        pofvr(
+            &[
+                "render",
+                "phantom:head:48",
+                "--size",
+                "64x56",
+                "--view",
+                "30,20",
+                "--cull",
+                "none",
+                "--ranks",
+                ranks,
+                "--replicas",
+                replicas,
+                "--out",
+                "o.png",
+                "--out-raw",
+                raw,
+                "--stats",
+                &format!("{raw}.json"),
+            ],
+            d,
+        )
+    };
+    let o = render("1", "1", "one.raw");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = render("5", "2", "five.raw");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(max_diff(&d.join("one.raw"), &d.join("five.raw")), 0.0);
+    let s: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("five.raw.json")).unwrap()).unwrap();
+    let rendered: u64 = s["ranks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["bricks_rendered"].as_u64().unwrap())
+        .sum();
+    assert_eq!(rendered, s["bricks"]["visible"].as_u64().unwrap(), "{s}");
+    let o = render("3", "4", "bad.raw");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--replicas 4"), "{err}");
+    assert!(!d.join("bad.raw").exists());
+}

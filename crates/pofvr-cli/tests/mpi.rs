@@ -176,6 +176,66 @@ fn one_to_four_mpi_ranks_give_the_in_process_frame_for_both_curves() {
 }
 
 #[test]
+fn two_replicas_under_mpi_hold_every_brick_twice_and_give_the_same_frame() {
+    if !have_mpirun() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = pofvr(&render_args("hilbert", "none", "one.raw"), d);
+    assert!(o.status.success(), "{}", text(&o));
+    let copies = |stats: &str| -> Vec<u64> {
+        let s: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join(stats)).unwrap()).unwrap();
+        let rendered: u64 = s["ranks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["bricks_rendered"].as_u64().unwrap())
+            .sum();
+        assert_eq!(rendered, s["bricks"]["visible"].as_u64().unwrap(), "{s}");
+        s["memory"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|m| m["brick_copy_bytes"].as_u64().unwrap())
+            .collect()
+    };
+    for np in [2usize, 3] {
+        let mut totals = Vec::new();
+        for replicas in ["1", "2"] {
+            let raw = format!("r{replicas}-{np}.raw");
+            let stats = format!("r{replicas}-{np}.json");
+            let (o, _) = mpirun(
+                np,
+                &[
+                    render_args("hilbert", "none", &raw),
+                    vec!["--replicas", replicas, "--stats", &stats],
+                ]
+                .concat(),
+                d,
+            );
+            assert!(
+                o.status.success(),
+                "-np {np} --replicas {replicas}: {}",
+                text(&o)
+            );
+            let diff = max_diff(&d.join(&raw), &d.join("one.raw"));
+            assert!(
+                diff <= 1e-6,
+                "-np {np} --replicas {replicas}: max diff {diff:e}"
+            );
+            totals.push(copies(&stats).iter().sum::<u64>());
+        }
+        assert_eq!(
+            totals[1],
+            2 * totals[0],
+            "-np {np}: brick copies {totals:?}"
+        );
+    }
+}
+
+#[test]
 fn an_orbit_sequence_under_mpi_has_one_stats_entry_per_frame() {
     if !have_mpirun() {
         return;

@@ -34,7 +34,7 @@ fn neighbours(c: [usize; 3], counts: [usize; 3]) -> impl Iterator<Item = [usize;
 }
 
 /// A brick assignment and the (curve, ranks) it was dealt for.
-type CachedAssignment = ((Curve, usize), std::sync::Arc<BrickAssignment>);
+type CachedAssignment = ((Curve, usize, usize), std::sync::Arc<BrickAssignment>);
 
 /// Everything a frame needs that does not change with the camera: the opened volume, its
 /// bricks and the tabulated transfer-function family.
@@ -97,28 +97,33 @@ impl RenderJob {
     /// on the family's bases and the data only, not on the weights or the view, so a
     /// distributed rank's bricks stay put.
     ///
+    /// `replicas` owners per brick (1: the paper's deal).
+    ///
     /// # Errors
-    /// [`DistributeError`] for a rank count of zero or one past `u32::MAX`.
+    /// [`DistributeError`] for a rank count of zero or one past `u32::MAX`, or replicas
+    /// outside `1..=ranks`.
     pub fn assignment(
         &self,
         curve: Curve,
         ranks: usize,
+        replicas: usize,
     ) -> Result<std::sync::Arc<BrickAssignment>, DistributeError> {
         let mut cache = self
             .assignment_cache
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         if let Some((key, a)) = cache.as_ref() {
-            if *key == (curve, ranks) {
+            if *key == (curve, ranks, replicas) {
                 return Ok(a.clone());
             }
         }
         let order = crate::distribute::SfcOrder::new(self.grid.counts(), curve)?;
         let layers = self.occupied_layers();
-        let a = std::sync::Arc::new(BrickAssignment::from_order_classes(&order, ranks, &|id| {
-            layers[id.index()]
-        })?);
-        *cache = Some(((curve, ranks), a.clone()));
+        let a = std::sync::Arc::new(
+            BrickAssignment::from_order_classes(&order, ranks, &|id| layers[id.index()])?
+                .with_replicas(replicas)?,
+        );
+        *cache = Some(((curve, ranks, replicas), a.clone()));
         Ok(a)
     }
 
@@ -408,6 +413,9 @@ pub struct FrameOptions {
     pub ranks: usize,
     /// The curve bricks are dealt along.
     pub curve: Curve,
+    /// Owners per brick (1, the paper's: each brick rendered by the rank it was dealt to;
+    /// 2: by the less loaded of two, see [`BrickAssignment`]).
+    pub replicas: usize,
 }
 
 impl Default for FrameOptions {
@@ -417,6 +425,7 @@ impl Default for FrameOptions {
             cull_threshold: 0.95,
             ranks: 1,
             curve: Curve::Hilbert,
+            replicas: 1,
         }
     }
 }
@@ -572,7 +581,7 @@ fn rank_frame(
     let cls = job.sampled.classify(weights, job.settings.step);
     let caster = RayCaster::new(&job.volume, &cls, job.settings);
     let bricks = FrameBricks::new(&job.volume, &job.grid, &job.sampled, weights, camera);
-    let assignment = job.assignment(opts.curve, comm.size())?;
+    let assignment = job.assignment(opts.curve, comm.size(), opts.replicas)?;
 
     // Cull for this rank's tile.
     let t = Instant::now();
@@ -625,12 +634,23 @@ fn rank_frame(
     // Ray-cast this rank's visible bricks, each over its own footprint.
     let t = Instant::now();
     let frame = camera.frame();
-    let mine: Vec<BrickId> = assignment
-        .of(me)
-        .iter()
-        .copied()
-        .filter(|b| visible[b.index()])
-        .collect();
+    let mine: Vec<BrickId> = if assignment.replicas() == 1 {
+        assignment
+            .of(me)
+            .iter()
+            .copied()
+            .filter(|b| visible[b.index()])
+            .collect()
+    } else {
+        // Every rank makes the same choice from the same visible set: no messages.
+        let ids: Vec<BrickId> = job.grid.ids().filter(|b| visible[b.index()]).collect();
+        let area = |b: BrickId| bricks.footprints[b.index()].map_or(0, |r| r.area() as u64);
+        ids.iter()
+            .zip(assignment.renderers(&ids, &area))
+            .filter(|(_, r)| *r == me)
+            .map(|(b, _)| *b)
+            .collect()
+    };
     let (fragments, rays): (Vec<TileFragment>, Vec<RayStats>) = mine
         .par_iter()
         .map(|id| {

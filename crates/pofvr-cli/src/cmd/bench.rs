@@ -149,6 +149,8 @@ fn default_real_volume() -> Option<(String, PathBuf)> {
 struct CullCase {
     mode: &'static str,
     ranks: usize,
+    /// Owners per brick (`render --replicas`).
+    replicas: usize,
     median_frame_ms: f64,
     max_cull_ms: f64,
     cull_share_of_frame: f64,
@@ -164,12 +166,13 @@ fn cull_case(
     bounds: Option<&dyn OpacityBound>,
     cam: &Camera,
     mode: CullMode,
-    ranks: usize,
+    (ranks, replicas): (usize, usize),
     reps: usize,
 ) -> Result<CullCase> {
     let opts = FrameOptions {
         cull: mode,
         ranks,
+        replicas,
         ..FrameOptions::default()
     };
     let mut runs = Vec::new();
@@ -189,6 +192,7 @@ fn cull_case(
     Ok(CullCase {
         mode: mode.name(),
         ranks,
+        replicas,
         median_frame_ms: st.frame_ms,
         max_cull_ms: max_cull,
         cull_share_of_frame: max_cull / st.frame_ms,
@@ -257,32 +261,47 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         }
     };
     let bounds: Option<&dyn OpacityBound> = Some(&pofs);
-    let plan: Vec<(CullMode, usize)> = vec![
-        (CullMode::None, 1),
-        (CullMode::Pof, 1),
-        (CullMode::PofSet, 1),
-        (CullMode::Exact, 1),
-        (CullMode::None, 2),
-        (CullMode::Pof, 2),
-        (CullMode::None, 8),
-        (CullMode::Pof, 8),
-        (CullMode::None, 32),
-        (CullMode::Pof, 32),
+    // (mode, ranks, replicas): the paper's deal at every count, and two owners per brick
+    // (`render --replicas 2`) where balance is the question.
+    let plan: Vec<(CullMode, usize, usize)> = vec![
+        (CullMode::None, 1, 1),
+        (CullMode::Pof, 1, 1),
+        (CullMode::PofSet, 1, 1),
+        (CullMode::Exact, 1, 1),
+        (CullMode::None, 2, 1),
+        (CullMode::Pof, 2, 1),
+        (CullMode::None, 8, 1),
+        (CullMode::Pof, 8, 1),
+        (CullMode::Pof, 8, 2),
+        (CullMode::None, 32, 1),
+        (CullMode::Pof, 32, 1),
+        (CullMode::Pof, 32, 2),
     ];
     let pb = ui.bar(plan.len() as u64, "bench cull");
     let mut cases = Vec::new();
-    for (mode, ranks) in plan {
+    for (mode, ranks, replicas) in plan {
         if mode.needs_pofs() && bounds.is_none() {
             eprintln!("skipping --cull {} at {ranks} ranks: no POFs", mode.name());
             pb.inc(1);
             continue;
         }
         let reps = if mode == CullMode::Exact { 1 } else { a.reps };
-        cases.push(cull_case(&job, bounds, &cam, mode, ranks, reps)?);
+        cases.push(cull_case(
+            &job,
+            bounds,
+            &cam,
+            mode,
+            (ranks, replicas),
+            reps,
+        )?);
         pb.inc(1);
     }
     pb.finish_and_clear();
-    let find = |m: &str, r: usize| cases.iter().find(|c| c.mode == m && c.ranks == r);
+    let find = |m: &str, r: usize| {
+        cases
+            .iter()
+            .find(|c| c.mode == m && c.ranks == r && c.replicas == 1)
+    };
     let speedup = match (find("none", 1), find("pof", 1)) {
         (Some(none1), Some(pof1)) => Some(none1.median_frame_ms / pof1.median_frame_ms),
         _ => None,
@@ -304,14 +323,23 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         pofs.core_lengths()
     );
     println!(
-        "{:<8} {:>5} {:>10} {:>9} {:>8} {:>8} {:>9} {:>8}",
-        "mode", "ranks", "frame ms", "cull ms", "cull %", "culled", "culled %", "balance"
+        "{:<8} {:>5} {:>8} {:>10} {:>9} {:>8} {:>8} {:>9} {:>8}",
+        "mode",
+        "ranks",
+        "replicas",
+        "frame ms",
+        "cull ms",
+        "cull %",
+        "culled",
+        "culled %",
+        "balance"
     );
     for c in &cases {
         println!(
-            "{:<8} {:>5} {:>10.1} {:>9.2} {:>8.2} {:>8} {:>9.1} {:>8.3}",
+            "{:<8} {:>5} {:>8} {:>10.1} {:>9.2} {:>8.2} {:>8} {:>9.1} {:>8.3}",
             c.mode,
             c.ranks,
+            c.replicas,
             c.median_frame_ms,
             c.max_cull_ms,
             100.0 * c.cull_share_of_frame,

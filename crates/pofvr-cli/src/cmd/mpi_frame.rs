@@ -103,9 +103,9 @@ impl Backend for Mpi<'_> {
         Ok(grid)
     }
 
-    fn prepare(&self, job: &mut RenderJob, curve: Curve) -> Result<()> {
-        let owners = job.assignment(curve, self.comm.size())?;
-        let store = BrickStore::new(&job.volume, &job.grid, owners.of(self.comm.rank()));
+    fn prepare(&self, job: &mut RenderJob, curve: Curve, replicas: usize) -> Result<()> {
+        let owners = job.assignment(curve, self.comm.size(), replicas)?;
+        let store = BrickStore::new(&job.volume, &job.grid, &owners.held_by(self.comm.rank()));
         // From here on only `--cull exact` (the oracle renders bricks it does not own) reads
         // the mapping again.
         job.volume.release_pages();

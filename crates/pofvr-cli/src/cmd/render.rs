@@ -37,7 +37,7 @@ pub(crate) trait Backend {
 
     /// Called once the job is made, before the first frame: a distributed backend keeps
     /// private copies of its own bricks and lets the volume's mapped pages go.
-    fn prepare(&self, _job: &mut RenderJob, _curve: Curve) -> Result<()> {
+    fn prepare(&self, _job: &mut RenderJob, _curve: Curve, _replicas: usize) -> Result<()> {
         Ok(())
     }
 
@@ -149,7 +149,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         .map_err(|e| anyhow::anyhow!("--curve: {e}"))?;
     let grid = backend.grid(&vol, a.volume.brick, curve)?;
     let mut job = RenderJob::with_grid(vol, tf, grid, resolve::settings(&a.view))?;
-    backend.prepare(&mut job, curve)?;
+    backend.prepare(&mut job, curve, a.frame.replicas)?;
     let job = job;
     sp.set_message("rendering");
     let mut pofs = None;
@@ -175,6 +175,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             cull_threshold: a.frame.cull_threshold,
             ranks: a.frame.ranks,
             curve,
+            replicas: a.frame.replicas,
         })
     };
     let bounds = pofs.as_ref().map(|t| t as &dyn OpacityBound);

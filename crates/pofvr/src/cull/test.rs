@@ -167,23 +167,27 @@ fn frame_is_identical_for_any_rank_count_and_curve() {
             ..FrameOptions::default()
         };
         let (base, base_stats) = render_frame(&j, Some(&bound), &c, &one).unwrap();
-        for curve in [Curve::Hilbert, Curve::Z] {
+        for (curve, replicas) in [(Curve::Hilbert, 1), (Curve::Z, 1), (Curve::Hilbert, 2)] {
             for ranks in [1, 2, 3, 4, 7, 32] {
+                if replicas > ranks {
+                    continue;
+                }
                 let opts = FrameOptions {
                     cull: mode,
                     ranks,
                     curve,
+                    replicas,
                     ..FrameOptions::default()
                 };
                 let (img, st) = render_frame(&j, Some(&bound), &c, &opts).unwrap();
                 assert_eq!(
                     img.max_abs_diff(&base),
                     Some(0.0),
-                    "{mode:?} {curve:?} {ranks} ranks"
+                    "{mode:?} {curve:?} {ranks} ranks, {replicas} replicas"
                 );
                 assert_eq!(
                     st.bricks, base_stats.bricks,
-                    "{mode:?} {curve:?} {ranks} ranks"
+                    "{mode:?} {curve:?} {ranks} ranks, {replicas} replicas"
                 );
                 assert_eq!(st.ranks.len(), ranks);
                 let rendered: usize = st.ranks.iter().map(|r| r.bricks_rendered).sum();
@@ -387,7 +391,9 @@ fn occupied_layers_peel_the_occupied_region_from_its_surface() {
         "the phantom's head is several bricks deep: {deepest}"
     );
     // The deal gives every rank its share of each layer.
-    let a = j.assignment(crate::distribute::Curve::Hilbert, 7).unwrap();
+    let a = j
+        .assignment(crate::distribute::Curve::Hilbert, 7, 1)
+        .unwrap();
     for l in 1..=deepest {
         let per: Vec<usize> = (0..7)
             .map(|r| {

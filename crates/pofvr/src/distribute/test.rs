@@ -330,3 +330,68 @@ fn each_class_of_bricks_is_dealt_evenly_apart_from_the_others() {
     );
     assert!(BrickAssignment::from_order_classes(&order, 0, &|_| 0).is_err());
 }
+
+#[test]
+fn replicas_give_each_brick_distinct_owners_and_renderers_balance_a_skewed_load() {
+    let counts = [9, 7, 5];
+    let order = SfcOrder::new(counts, Curve::Hilbert).unwrap();
+    let ranks = 6;
+    let one = BrickAssignment::from_order(&order, ranks).unwrap();
+    let two = one.clone().with_replicas(2).unwrap();
+    assert!(one.clone().with_replicas(0).is_err());
+    assert!(one.clone().with_replicas(7).is_err());
+    let mut held = vec![0usize; ranks];
+    for &b in order.bricks() {
+        let owners: Vec<Rank> = two.owners_of(b).collect();
+        assert_eq!(owners.len(), 2);
+        assert_eq!(
+            owners[0],
+            one.owner(b).unwrap(),
+            "the dealt rank comes first"
+        );
+        assert_ne!(owners[0], owners[1]);
+        for r in owners {
+            held[r.index()] += 1;
+        }
+    }
+    for (r, h) in held.iter().enumerate() {
+        #[allow(clippy::cast_possible_truncation)]
+        let rank = Rank(r as u32);
+        assert_eq!(two.held_by(rank).len(), *h);
+        assert_eq!(one.held_by(rank), {
+            let mut v = one.of(rank).to_vec();
+            v.sort();
+            v
+        });
+    }
+    assert_eq!(held.iter().sum::<usize>(), 2 * order.len());
+    // Visible: the bricks dealt to ranks 0 and 1 only, as when a view shows one corner.
+    let visible: Vec<BrickId> = order
+        .bricks()
+        .iter()
+        .copied()
+        .filter(|b| one.owner(*b).unwrap().index() < 2)
+        .collect();
+    let cost = |b: BrickId| u64::from(b.0 % 5 + 1);
+    let load = |who: &[Rank]| {
+        let mut l = vec![0u64; ranks];
+        for (b, r) in visible.iter().zip(who) {
+            l[r.index()] += cost(*b);
+        }
+        l
+    };
+    let single = load(&one.renderers(&visible, &cost));
+    let chosen = two.renderers(&visible, &cost);
+    for (b, r) in visible.iter().zip(&chosen) {
+        assert!(two.owners_of(*b).any(|o| o == *r), "{b:?} given to {r:?}");
+    }
+    assert_eq!(chosen, two.renderers(&visible, &cost), "deterministic");
+    let double = load(&chosen);
+    let max = |l: &[u64]| *l.iter().max().unwrap();
+    assert_eq!(single.iter().sum::<u64>(), double.iter().sum::<u64>());
+    // Two ranks carried everything; now four share it.
+    assert!(
+        max(&double) * 10 <= max(&single) * 6,
+        "{single:?} -> {double:?}"
+    );
+}
