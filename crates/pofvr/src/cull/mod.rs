@@ -634,7 +634,12 @@ impl Culler<'_> {
         for (k, r) in regions.iter_mut().enumerate().take(levels.len()) {
             *r = spans.region(ibox, Some(cores[k]));
         }
-        for y in rect.y0..rect.y1 {
+        // A sub-brick covers a few rows of its brick's rectangle: only those can hold its
+        // cores.
+        let (y0, y1) = spans.rows_of(ibox).map_or((rect.y0, rect.y1), |(a, b)| {
+            (a.max(rect.y0), b.min(rect.y1))
+        });
+        for y in y0..y1 {
             if regions[0].is_none() {
                 // Perspective: the deepest level whose core holds each pixel.
                 for x in rect.x0..rect.x1 {
@@ -817,43 +822,85 @@ const PREFETCH: usize = 16;
 static BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
 
 /// A convex region of the image, `c0 + cy·y + cx·x ≥ 0` for each of its half-planes, with
-/// pixel centres at integer `(x, y)` (see [`PixelSpans::region`]).
-#[derive(Default, Clone, Copy)]
+/// pixel centres at integer `(x, y)` (see [`PixelSpans::region`]). Kept as what a row
+/// needs: the left bounds `x ≥ p + q·y`, the right bounds `x ≤ p + q·y` and the rows.
+#[derive(Clone, Copy)]
 struct Region {
-    /// `(c0, cy, cx, 1/cx)`; `cx` is 0 for a half-plane of rows only.
-    planes: [(f64, f64, f64, f64); 16],
-    n: usize,
+    left: [(f64, f64); MAX_PLANES],
+    right: [(f64, f64); MAX_PLANES],
+    n_left: usize,
+    n_right: usize,
+    /// Rows `y_lo ≤ y ≤ y_hi` (from the half-planes that do not depend on x).
+    y_lo: f64,
+    y_hi: f64,
+    /// False when a coefficient is not finite (which finite cameras never cause): every
+    /// run is then empty and every row a candidate, both safe.
+    finite: bool,
 }
+
+/// The most half-planes of a region that depend on x: three far-plane bounds and six
+/// far-after-near pairs of three slabs.
+const MAX_PLANES: usize = 9;
 
 /// How far inside its bounds a pixel must be to count as surely in a [`Region`], in pixels:
 /// far above the rounding of the solve (about 1e-12 of the coordinates), far below a pixel.
 const REGION_MARGIN: f64 = 1e-6;
 
 impl Region {
+    fn new() -> Self {
+        Region {
+            left: [(0.0, 0.0); MAX_PLANES],
+            right: [(0.0, 0.0); MAX_PLANES],
+            n_left: 0,
+            n_right: 0,
+            y_lo: f64::NEG_INFINITY,
+            y_hi: f64::INFINITY,
+            finite: true,
+        }
+    }
+
     /// Adds `c0 + cy·y + cx·x ≥ 0`, with `inv` = `1/cx` (precomputed per frame: the
     /// slopes are the view's, not the box's).
     fn push(&mut self, c0: f64, cy: f64, cx: f64, inv: f64) {
-        self.planes[self.n] = (c0, cy, cx, inv);
-        self.n += 1;
+        self.finite &= c0.is_finite() && cy.is_finite() && cx.is_finite();
+        if cx == 0.0 {
+            if cy == 0.0 {
+                if c0 < 0.0 {
+                    self.y_lo = f64::INFINITY;
+                }
+            } else if cy > 0.0 {
+                self.y_lo = self.y_lo.max(-c0 / cy);
+            } else {
+                self.y_hi = self.y_hi.min(-c0 / cy);
+            }
+            return;
+        }
+        self.finite &= inv.is_finite();
+        let line = (-c0 * inv, -cy * inv);
+        if cx > 0.0 {
+            self.left[self.n_left] = line;
+            self.n_left += 1;
+        } else {
+            self.right[self.n_right] = line;
+            self.n_right += 1;
+        }
     }
 
-    /// The real interval of row `y` inside the region: empty when `lo > hi`, NaN ends
-    /// when the solve failed (which finite cameras never make it do).
+    /// The real interval of row `y` inside the region, its rows widened (`margin` > 0) or
+    /// narrowed (< 0) by `margin`: empty when `lo > hi`.
     #[inline]
-    fn interval(&self, y: u32) -> (f64, f64) {
+    fn interval(&self, y: u32, margin: f64) -> (f64, f64) {
         let fy = f64::from(y);
-        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
-        for &(c0, cy, cx, inv) in &self.planes[..self.n] {
-            let c = c0 + cy * fy;
-            if cx > 0.0 {
-                lo = lo.max(-c * inv);
-            } else if cx < 0.0 {
-                hi = hi.min(-c * inv);
-            } else if c < 0.0 {
-                return (f64::INFINITY, f64::NEG_INFINITY);
-            } else if c.is_nan() {
-                return (f64::NAN, f64::NAN);
-            }
+        if fy < self.y_lo - margin || fy > self.y_hi + margin {
+            return (f64::INFINITY, f64::NEG_INFINITY);
+        }
+        let mut lo = f64::NEG_INFINITY;
+        for &(p, q) in &self.left[..self.n_left] {
+            lo = lo.max(p + q * fy);
+        }
+        let mut hi = f64::INFINITY;
+        for &(p, q) in &self.right[..self.n_right] {
+            hi = hi.min(p + q * fy);
         }
         (lo, hi)
     }
@@ -862,25 +909,30 @@ impl Region {
     /// passes each of them.
     #[inline]
     fn run(&self, y: u32, (x0, x1): (u32, u32)) -> std::ops::Range<u32> {
-        let (lo, hi) = self.interval(y);
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-        let clip = |x: f64| x.clamp(f64::from(x0), f64::from(x1)) as u32;
-        // (NaN ends make an empty run, which is always safe.)
-        if lo.is_nan() || hi.is_nan() || lo > hi {
+        let (lo, hi) = self.interval(y, -REGION_MARGIN);
+        if !self.finite || lo > hi {
             return x0..x0;
         }
-        let (a, b) = (
-            clip((lo + REGION_MARGIN).ceil()),
-            clip((hi - REGION_MARGIN).floor() + 1.0),
+        // Clamped first, so that the integer conversions below are exact.
+        let (fx0, fx1) = (f64::from(x0), f64::from(x1));
+        let (lo, hi) = (
+            (lo + REGION_MARGIN).clamp(fx0, fx1),
+            (hi - REGION_MARGIN).clamp(fx0, fx1),
         );
-        a..b.max(a)
+        // ⌈lo⌉ and ⌊hi⌋ + 1 of non-negative values below 2³², without a libm call.
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        let (a, b) = {
+            let (t, u) = (lo as u32, hi as u32);
+            (t + u32::from(f64::from(t) < lo), u + 1)
+        };
+        a..b.min(x1).max(a)
     }
 
     /// The pixels of row `y` that may be inside, widened by a pixel each side and clipped
     /// to `x0..x1`: the exact test passes none outside them.
     fn candidates(&self, y: u32, (x0, x1): (u32, u32)) -> std::ops::Range<u32> {
-        let (lo, hi) = self.interval(y);
-        if lo.is_nan() || hi.is_nan() {
+        let (lo, hi) = self.interval(y, REGION_MARGIN);
+        if !self.finite {
             return x0..x1;
         }
         if lo > hi {
@@ -929,6 +981,8 @@ enum PixelSpans<'a> {
         /// `1/slope[a]` on the diagonal, `1/(slope[a] − slope[b])` off it (0 for a zero
         /// denominator).
         inv_slope: [[f64; 3]; 3],
+        /// The image row of a point `p` is `row · (p − o00)`.
+        row: [f64; 3],
     },
     Perspective {
         camera: &'a Camera,
@@ -969,7 +1023,11 @@ impl<'a> PixelSpans<'a> {
                 })
             })
         });
+        // p − o00 = x·du + y·dv + t·d: the second row of the inverse gives y.
+        let inv = glam::DMat3::from_cols(DVec3::from(du), dv, d).inverse();
+        let row = inv.row(1).to_array();
         PixelSpans::Orthographic {
+            row,
             o00: o00.to_array(),
             du,
             dv: dv.to_array(),
@@ -979,6 +1037,34 @@ impl<'a> PixelSpans<'a> {
             slope,
             inv_slope,
         }
+    }
+
+    /// Orthographic views: the image rows `y0..y1` whose pixels' rays may meet `b` (with a
+    /// row of margin each side); `None` for perspective views.
+    fn rows_of(&self, b: &crate::brick::IndexBox) -> Option<(u32, u32)> {
+        let PixelSpans::Orthographic { o00, row, .. } = self else {
+            return None;
+        };
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for corner in 0..8 {
+            let mut y = 0.0;
+            for a in 0..3 {
+                let c = if corner >> a & 1 == 0 {
+                    b.lo[a]
+                } else {
+                    b.hi[a]
+                };
+                y += row[a] * (f64::from(c) - o00[a]);
+            }
+            lo = lo.min(y);
+            hi = hi.max(y);
+        }
+        if !(lo.is_finite() && hi.is_finite()) {
+            return None;
+        }
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        let clip = |y: f64| y.clamp(0.0, f64::from(u32::MAX)) as u32;
+        Some((clip(lo.floor() - 1.0), clip(hi.ceil() + 2.0)))
     }
 
     /// The pixel's `t` span inside `b` (unclipped; may be empty: `t1 < t0`).
@@ -1056,7 +1142,7 @@ impl<'a> PixelSpans<'a> {
         };
         // The least length, and the least far crossing, the test asks for.
         let need = core.map_or(-SPAN_SLACK, |c| f64::from(c) + SPAN_SLACK);
-        let mut r = Region::default();
+        let mut r = Region::new();
         // Near and far crossings of each slab at x = 0 as (intercept, y slope), and its
         // x slope.
         let mut slabs = [((0.0, 0.0), (0.0, 0.0), 0usize); 3];
@@ -1083,8 +1169,13 @@ impl<'a> PixelSpans<'a> {
         for &(_, (far, far_y), a) in &slabs[..n] {
             r.push(far - need, far_y, slope[a], inv_slope[a][a]);
             for &((near, near_y), _, b) in &slabs[..n] {
-                let cx = if a == b { 0.0 } else { slope[a] - slope[b] };
-                r.push(far - near - need, far_y - near_y, cx, inv_slope[a][b]);
+                // (a = b: the slab's own thickness along the ray, the same for every pixel.)
+                let (cy, cx) = if a == b {
+                    (0.0, 0.0)
+                } else {
+                    (far_y - near_y, slope[a] - slope[b])
+                };
+                r.push(far - near - need, cy, cx, inv_slope[a][b]);
             }
         }
         Some(r)

@@ -267,12 +267,17 @@ fn row_candidates_hold_every_pixel_the_exact_tests_pass_and_runs_only_such_pixel
                     let xs = spans
                         .row_candidates(y, &ibox, core, (rect.x0, rect.x1))
                         .expect("orthographic");
+                    let box_rows = spans.rows_of(&ibox).expect("orthographic");
                     for x in rect.x0..rect.x1 {
                         let pass = match core {
                             None => spans.hits(x, y, &ibox),
                             Some(l) => spans.in_core(x, y, &ibox, l),
                         };
                         passing += usize::from(pass);
+                        assert!(
+                            !pass || (box_rows.0..box_rows.1).contains(&y),
+                            "view {az},{el} brick {id:?}: row {y} outside {box_rows:?}"
+                        );
                         assert!(
                             !pass || xs.contains(&x),
                             "view {az},{el} brick {id:?} core {core:?} row {y}: {x} outside {xs:?}"

@@ -793,17 +793,28 @@ impl PofTable {
         };
         // The first byte of each function's value in the cell; in a cell-major record they
         // are side by side, so the first and last byte cover them (across a line boundary).
-        let at: Vec<usize> = if self.meta.cell_major {
-            vec![range(0).start, range(funcs - 1).end - 1]
+        // Culling calls this per visible brick: no allocation.
+        let (first, last) = (range(0).start, range(funcs - 1).end - 1);
+        let step = if self.meta.cell_major {
+            0
         } else {
-            (0..funcs).map(|f| range(f).start).collect()
+            range(1.min(funcs - 1)).start - first
         };
+        let data = self.bytes.as_slice();
         for &b in bricks {
             if let Some(s) = self.slot(b) {
-                let rec = self.record(s);
-                for &i in &at {
-                    if let Some(x) = rec.get(i) {
-                        prefetch_line(x);
+                let rec = self.data_offset + s * self.record_len;
+                if self.meta.cell_major {
+                    for i in [first, last] {
+                        if let Some(x) = data.get(rec + i) {
+                            prefetch_line(x);
+                        }
+                    }
+                } else {
+                    for f in 0..funcs {
+                        if let Some(x) = data.get(rec + first + f * step) {
+                            prefetch_line(x);
+                        }
                     }
                 }
             }
