@@ -349,3 +349,78 @@ fn an_error_names_its_cause_once() {
     let cause = "No such file or directory";
     assert_eq!(e.matches(cause).count(), 1, "{e}");
 }
+
+#[test]
+fn bench_cull_reports_every_case_and_each_target_in_one_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = pofvr(
+        &[
+            "bench",
+            "cull",
+            "phantom:head:48",
+            "--size",
+            "64x64",
+            "--reps",
+            "1",
+            "--quiet",
+            "--out",
+            "b.json",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("b.json")).unwrap()).unwrap();
+    let cases = r["cases"].as_array().unwrap();
+    for (mode, ranks, replicas) in [
+        ("none", 1, 1),
+        ("pof", 1, 1),
+        ("pof-set", 1, 1),
+        ("exact", 1, 1),
+        ("pof", 2, 1),
+        ("pof", 8, 1),
+        ("pof", 8, 2),
+        ("pof", 32, 1),
+        ("pof", 32, 2),
+    ] {
+        let c = cases
+            .iter()
+            .find(|c| c["mode"] == mode && c["ranks"] == ranks && c["replicas"] == replicas)
+            .unwrap_or_else(|| panic!("no case {mode} {ranks} {replicas}: {r}"));
+        for key in [
+            "median_frame_ms",
+            "max_cull_ms",
+            "cull_share_of_frame",
+            "culled_fraction",
+            "load_balance_max_over_mean_samples",
+        ] {
+            assert!(c[key].as_f64().is_some(), "{key} in {c}");
+        }
+    }
+    let targets = r["targets"].as_array().unwrap();
+    assert_eq!(targets.len(), 6, "{r}");
+    for t in targets {
+        let (m, goal) = (
+            t["measured"].as_f64().unwrap(),
+            t["target"].as_f64().unwrap(),
+        );
+        let at_most = t["at_most"].as_bool().unwrap();
+        assert_eq!(
+            t["met"].as_bool().unwrap(),
+            if at_most { m <= goal } else { m >= goal },
+            "{t}"
+        );
+    }
+    let speedup = r["speedup_pof_vs_none"].as_f64().unwrap();
+    let t = targets
+        .iter()
+        .find(|t| t["what"].as_str().unwrap().contains("speed-up"))
+        .unwrap();
+    assert_eq!(t["measured"].as_f64().unwrap(), speedup);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("target load balance at 32 ranks (2 replicas)"),
+        "{text}"
+    );
+}

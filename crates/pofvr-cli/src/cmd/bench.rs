@@ -204,6 +204,83 @@ fn cull_case(
     })
 }
 
+/// One of the issue's performance targets, as measured in this run.
+#[derive(Serialize)]
+struct Target {
+    what: String,
+    measured: f64,
+    target: f64,
+    /// The measure must be at most (true) or at least (false) the target.
+    at_most: bool,
+    met: bool,
+}
+
+/// The targets of `bench cull` (issue 4) from the cases of one run.
+fn cull_targets(cases: &[CullCase], speedup: Option<f64>) -> Vec<Target> {
+    let find = |m: &str, r: usize, k: usize| {
+        cases
+            .iter()
+            .find(|c| c.mode == m && c.ranks == r && c.replicas == k)
+    };
+    let mut out = Vec::new();
+    let mut push = |what: String, measured: f64, target: f64, at_most: bool| {
+        let met = if at_most {
+            measured <= target
+        } else {
+            measured >= target
+        };
+        out.push(Target {
+            what,
+            measured,
+            target,
+            at_most,
+            met,
+        });
+    };
+    if let Some(c) = find("pof", 1, 1) {
+        push(
+            "culling share of the frame (pof, 1 rank)".into(),
+            c.cull_share_of_frame,
+            0.03,
+            true,
+        );
+    }
+    if let Some(e) = find("exact", 1, 1) {
+        for m in ["pof", "pof-set"] {
+            if let Some(c) = find(m, 1, 1) {
+                push(
+                    format!("points culled below exact ({m})"),
+                    100.0 * (e.culled_fraction - c.culled_fraction),
+                    3.0,
+                    true,
+                );
+            }
+        }
+    }
+    for k in [1, 2] {
+        if let Some(c) = find("pof", 32, k) {
+            push(
+                format!(
+                    "load balance at 32 ranks ({k} replica{})",
+                    if k == 1 { "" } else { "s" }
+                ),
+                c.load_balance_max_over_mean_samples,
+                1.15,
+                true,
+            );
+        }
+    }
+    if let Some(x) = speedup {
+        push(
+            "frame speed-up, pof over none (1 rank)".into(),
+            x,
+            2.0,
+            false,
+        );
+    }
+    out
+}
+
 pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
     let (spec, tf_path) = match (&a.volume, default_real_volume()) {
         (Some(v), _) => (v.clone(), a.tf.clone()),
@@ -351,12 +428,24 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
     if let Some(x) = speedup {
         println!("frame time none/pof at 1 rank: {x:.2}x");
     }
+    let targets = cull_targets(&cases, speedup);
+    for t in &targets {
+        println!(
+            "target {:<48} {:>8.3} {} {:<6} {}",
+            t.what,
+            t.measured,
+            if t.at_most { "<=" } else { ">=" },
+            t.target,
+            if t.met { "met" } else { "MISSED" }
+        );
+    }
     let report = serde_json::json!({
         "volume": spec,
         "image": [w, h],
         "view": view,
         "threads": rayon::current_num_threads(),
         "speedup_pof_vs_none": speedup,
+        "targets": targets,
         "pof": {
             "core_lengths": pofs.core_lengths(),
             "method": format!("{:?}", pofs.first().meta().method).to_lowercase(),
