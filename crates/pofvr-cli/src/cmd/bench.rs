@@ -152,6 +152,7 @@ struct CullCase {
     /// Owners per brick (`render --replicas`).
     replicas: usize,
     median_frame_ms: f64,
+    /// Median over the repetitions of the slowest rank's culling time.
     max_cull_ms: f64,
     cull_share_of_frame: f64,
     culled: usize,
@@ -161,35 +162,29 @@ struct CullCase {
     load_balance_max_over_mean_samples: f64,
 }
 
+/// The median frame of `runs` (at least one) of a case, summarised.
 fn cull_case(
-    job: &RenderJob,
-    bounds: Option<&dyn OpacityBound>,
-    cam: &Camera,
     mode: CullMode,
     (ranks, replicas): (usize, usize),
-    reps: usize,
-) -> Result<CullCase> {
-    let opts = FrameOptions {
-        cull: mode,
-        ranks,
-        replicas,
-        ..FrameOptions::default()
-    };
-    let mut runs = Vec::new();
-    for _ in 0..reps.max(1) {
-        let (_, st) = render_frame(job, bounds, cam, &opts)?;
-        runs.push(st);
-    }
+    mut runs: Vec<pofvr::frame::FrameStats>,
+) -> CullCase {
+    // Each of frame and culling time is the median of its own: the slowest rank's culling
+    // in one frame says little on a machine shared with other work.
+    let mut culls: Vec<f64> = runs
+        .iter()
+        .map(|st| st.ranks.iter().map(|r| r.cull_ms).fold(0.0, f64::max))
+        .collect();
+    culls.sort_by(f64::total_cmp);
+    let max_cull = culls[culls.len() / 2];
     runs.sort_by(|a, b| a.frame_ms.total_cmp(&b.frame_ms));
     let st = &runs[runs.len() / 2];
-    let max_cull = st.ranks.iter().map(|r| r.cull_ms).fold(0.0, f64::max);
     #[allow(clippy::cast_precision_loss)]
     let mean =
         st.ranks.iter().map(|r| r.samples as f64).sum::<f64>() / st.ranks.len().max(1) as f64;
     #[allow(clippy::cast_precision_loss)]
     let max = st.ranks.iter().map(|r| r.samples).max().unwrap_or(0) as f64;
     #[allow(clippy::cast_precision_loss)]
-    Ok(CullCase {
+    CullCase {
         mode: mode.name(),
         ranks,
         replicas,
@@ -201,7 +196,7 @@ fn cull_case(
         culled_fraction: st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64,
         samples: st.samples,
         load_balance_max_over_mean_samples: if mean > 0.0 { max / mean } else { 1.0 },
-    })
+    }
 }
 
 /// One of the performance targets, as measured in this run.
@@ -354,26 +349,33 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         (CullMode::Pof, 32, 1),
         (CullMode::Pof, 32, 2),
     ];
-    let pb = ui.bar(plan.len() as u64, "bench cull");
-    let mut cases = Vec::new();
-    for (mode, ranks, replicas) in plan {
-        if mode.needs_pofs() && bounds.is_none() {
-            eprintln!("skipping --cull {} at {ranks} ranks: no POFs", mode.name());
+    // Repetitions interleave the cases (one frame of each in turn), so that the machine's
+    // drift during the run weighs on every case alike and the ratios compare like with
+    // like. The oracle, slow and deterministic, runs once.
+    let reps = a.reps.max(1);
+    let pb = ui.bar((plan.len() * reps) as u64, "bench cull");
+    let mut runs: Vec<Vec<pofvr::frame::FrameStats>> = vec![Vec::new(); plan.len()];
+    for rep in 0..reps {
+        for (k, &(mode, ranks, replicas)) in plan.iter().enumerate() {
             pb.inc(1);
-            continue;
+            if mode == CullMode::Exact && rep > 0 {
+                continue;
+            }
+            let opts = FrameOptions {
+                cull: mode,
+                ranks,
+                replicas,
+                ..FrameOptions::default()
+            };
+            runs[k].push(render_frame(&job, bounds, &cam, &opts)?.1);
         }
-        let reps = if mode == CullMode::Exact { 1 } else { a.reps };
-        cases.push(cull_case(
-            &job,
-            bounds,
-            &cam,
-            mode,
-            (ranks, replicas),
-            reps,
-        )?);
-        pb.inc(1);
     }
     pb.finish_and_clear();
+    let cases: Vec<CullCase> = plan
+        .iter()
+        .zip(runs)
+        .map(|(&(mode, ranks, replicas), r)| cull_case(mode, (ranks, replicas), r))
+        .collect();
     let find = |m: &str, r: usize| {
         cases
             .iter()

@@ -397,16 +397,19 @@ impl Culler<'_> {
         let start = Instant::now();
         let strips = strips_of(tile, self.mode);
         if strips.len() == 1 {
-            let mut out = self.cull_strip(camera, bricks, tile);
+            let mine = bricks_over(bricks, &strips);
+            let mut out = self.cull_strip(camera, tile, &mine[0]);
             out.cull_ms = start.elapsed().as_secs_f64() * 1e3;
             return out;
         }
         // Culling walks the bricks in order over one buffer, so it runs on one core; cut into
         // strips, each culled as a tile of its own (as the ranks' tiles are), it runs on all
         // of them. A brick is visible when it is in any strip, culled when in none.
+        let mine = bricks_over(bricks, &strips);
         let parts: Vec<CullResult> = strips
             .par_iter()
-            .map(|s| self.cull_strip(camera, bricks, *s))
+            .zip(&mine)
+            .map(|(s, m)| self.cull_strip(camera, *s, m))
             .collect();
         const CULLED: u8 = 1;
         const VISIBLE: u8 = 2;
@@ -431,8 +434,14 @@ impl Culler<'_> {
         out
     }
 
-    /// [`Culler::cull`] over one strip of the tile, on this thread.
-    fn cull_strip(&self, camera: &Camera, bricks: &FrameBricks, tile: PixelRect) -> CullResult {
+    /// [`Culler::cull`] over one strip of the tile, on this thread: `mine` are the bricks
+    /// over it, in order, with their footprints in it.
+    fn cull_strip(
+        &self,
+        camera: &Camera,
+        tile: PixelRect,
+        mine: &[(BrickId, PixelRect)],
+    ) -> CullResult {
         let frame = camera.frame();
         let tw = tile.width() as usize;
         // A frame's buffer is megabytes; a fresh allocation each frame would be fresh pages,
@@ -470,12 +479,6 @@ impl Culler<'_> {
         let ortho = camera.projection == Projection::Orthographic;
         // (Sub-brick bounds are looked up by other ids: they are prefetched per brick.)
         let prefetch = !own.bounds.is_empty() && ortho;
-        // The bricks over this tile, in order (with their footprint in it).
-        let mine: Vec<(BrickId, PixelRect)> = bricks
-            .order
-            .iter()
-            .filter_map(|&id| Some((id, bricks.footprints[id.index()]?.intersect(&tile)?)))
-            .collect();
         let ids: Vec<BrickId> = if prefetch {
             mine.iter().map(|(id, _)| *id).collect()
         } else {
@@ -810,6 +813,34 @@ fn strips_of(tile: PixelRect, mode: CullMode) -> Vec<PixelRect> {
             ..tile
         })
         .collect()
+}
+
+/// The bricks over each of `strips` (rows of one tile, in order, of equal height give or take
+/// a row), in visibility order, with their footprint in the strip: one pass over the
+/// frame's bricks for all strips.
+fn bricks_over(bricks: &FrameBricks, strips: &[PixelRect]) -> Vec<Vec<(BrickId, PixelRect)>> {
+    let mut out = vec![Vec::new(); strips.len()];
+    let (Some(first), Some(last)) = (strips.first(), strips.last()) else {
+        return out;
+    };
+    let tile = PixelRect {
+        y1: last.y1,
+        ..*first
+    };
+    for &id in &bricks.order {
+        let Some(rect) = bricks.footprints[id.index()].and_then(|r| r.intersect(&tile)) else {
+            continue;
+        };
+        // The first strip the footprint reaches, then on while they overlap.
+        let k0 = strips.partition_point(|s| s.y1 <= rect.y0);
+        for (k, s) in strips.iter().enumerate().skip(k0) {
+            match rect.intersect(s) {
+                Some(r) => out[k].push((id, r)),
+                None => break,
+            }
+        }
+    }
+    out
 }
 
 /// The most POF levels (core lengths) culling uses.
