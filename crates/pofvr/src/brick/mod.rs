@@ -176,7 +176,12 @@ impl BrickGrid {
     /// Inclusive voxel index bounds of the samples of brick `id` (its box, ghost included).
     #[must_use]
     pub fn voxel_bounds(&self, id: BrickId) -> ([usize; 3], [usize; 3]) {
-        let c = self.coords(id);
+        self.voxel_bounds_at(self.coords(id))
+    }
+
+    /// [`BrickGrid::voxel_bounds`] of the brick at coordinates `c`.
+    #[inline]
+    fn voxel_bounds_at(&self, c: [usize; 3]) -> ([usize; 3], [usize; 3]) {
         let lo: [usize; 3] = std::array::from_fn(|a| c[a] * self.brick_size);
         let hi: [usize; 3] =
             std::array::from_fn(|a| ((c[a] + 1) * self.brick_size).min(self.volume_dims[a] - 1));
@@ -187,7 +192,16 @@ impl BrickGrid {
     #[must_use]
     #[allow(clippy::cast_precision_loss)]
     pub fn index_box(&self, id: BrickId) -> IndexBox {
-        let (lo, hi) = self.voxel_bounds(id);
+        self.index_box_at(self.coords(id))
+    }
+
+    /// [`BrickGrid::index_box`] of the brick at coordinates `c` (no division by the
+    /// counts: culling asks for the boxes of eight sub-bricks per visible brick).
+    #[inline]
+    #[must_use]
+    #[allow(clippy::cast_precision_loss)]
+    fn index_box_at(&self, c: [usize; 3]) -> IndexBox {
+        let (lo, hi) = self.voxel_bounds_at(c);
         IndexBox {
             lo: lo.map(|x| x as f32),
             hi: hi.map(|x| x as f32),
@@ -233,17 +247,14 @@ impl BrickGrid {
         let k = self.brick_size / fine.brick_size;
         let c = self.coords(id);
         let n = fine.counts;
-        (0..k * k * k).filter_map(move |i| {
-            let f = [
-                c[0] * k + i % k,
-                c[1] * k + (i / k) % k,
-                c[2] * k + i / (k * k),
-            ];
-            (f[0] < n[0] && f[1] < n[1] && f[2] < n[2]).then(|| {
-                let id = fine.id(f);
-                (id, fine.index_box(id))
+        // x fastest, as ids; no division per sub-brick.
+        (0..k)
+            .flat_map(move |z| (0..k).flat_map(move |y| (0..k).map(move |x| [x, y, z])))
+            .filter_map(move |o| {
+                let f = [c[0] * k + o[0], c[1] * k + o[1], c[2] * k + o[2]];
+                (f[0] < n[0] && f[1] < n[1] && f[2] < n[2])
+                    .then(|| (fine.id(f), fine.index_box_at(f)))
             })
-        })
     }
 
     /// Bricks along x, y, z.
