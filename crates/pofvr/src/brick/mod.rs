@@ -233,28 +233,42 @@ impl BrickGrid {
     ///
     /// # Panics
     /// When `fine`'s brick size does not divide this grid's (a setup error).
-    pub fn sub_bricks<'f>(
+    #[must_use]
+    pub fn sub_bricks(&self, id: BrickId, fine: &BrickGrid) -> Vec<(BrickId, IndexBox)> {
+        let mut out = Vec::new();
+        self.sub_bricks_into(id, fine, &mut out);
+        out
+    }
+
+    /// [`BrickGrid::sub_bricks`] into `out` (cleared first), x fastest: culling asks for
+    /// them for every visible brick, into one reused vector.
+    ///
+    /// # Panics
+    /// When `fine`'s brick size does not divide this grid's (a setup error).
+    pub fn sub_bricks_into(
         &self,
         id: BrickId,
-        fine: &'f BrickGrid,
-    ) -> impl Iterator<Item = (BrickId, IndexBox)> + 'f {
+        fine: &BrickGrid,
+        out: &mut Vec<(BrickId, IndexBox)>,
+    ) {
         assert!(
             self.brick_size.is_multiple_of(fine.brick_size),
             "sub-bricks of {} need a dividing brick size, not {}",
             self.brick_size,
             fine.brick_size
         );
+        out.clear();
         let k = self.brick_size / fine.brick_size;
-        let c = self.coords(id);
+        let c = self.coords(id).map(|x| x * k);
         let n = fine.counts;
-        // x fastest, as ids; no division per sub-brick.
-        (0..k)
-            .flat_map(move |z| (0..k).flat_map(move |y| (0..k).map(move |x| [x, y, z])))
-            .filter_map(move |o| {
-                let f = [c[0] * k + o[0], c[1] * k + o[1], c[2] * k + o[2]];
-                (f[0] < n[0] && f[1] < n[1] && f[2] < n[2])
-                    .then(|| (fine.id(f), fine.index_box_at(f)))
-            })
+        for z in c[2]..(c[2] + k).min(n[2]) {
+            for y in c[1]..(c[1] + k).min(n[1]) {
+                for x in c[0]..(c[0] + k).min(n[0]) {
+                    let f = [x, y, z];
+                    out.push((fine.id(f), fine.index_box_at(f)));
+                }
+            }
+        }
     }
 
     /// Bricks along x, y, z.

@@ -555,8 +555,7 @@ impl Culler<'_> {
                         t: &mut scratch,
                         rect,
                     };
-                    subs.clear();
-                    subs.extend(self.grid.sub_bricks(id, fine));
+                    self.grid.sub_bricks_into(id, fine, &mut subs);
                     if ortho {
                         // Each lookup is a cache miss in a table of many megabytes: start
                         // them all before waiting on the first.
