@@ -940,22 +940,26 @@ impl Region {
     #[inline]
     fn run(&self, y: u32, (x0, x1): (u32, u32)) -> std::ops::Range<u32> {
         let (lo, hi) = self.interval(y, -REGION_MARGIN);
+        let (lo, hi) = (lo + REGION_MARGIN, hi - REGION_MARGIN);
         if !self.finite || lo > hi {
             return x0..x0;
         }
-        // Clamped first, so that the integer conversions below are exact.
+        // The integers in [lo, hi] and in x0..x1: ⌈lo⌉ and ⌊hi⌋ + 1, clamped first so that
+        // the conversions (which truncate) see non-negative values below 2³². `hi` is clamped
+        // to one left of x0 at least, so that a region wholly left of the window leaves the
+        // run empty instead of holding x0.
         let (fx0, fx1) = (f64::from(x0), f64::from(x1));
-        let (lo, hi) = (
-            (lo + REGION_MARGIN).clamp(fx0, fx1),
-            (hi - REGION_MARGIN).clamp(fx0, fx1),
-        );
-        // ⌈lo⌉ and ⌊hi⌋ + 1 of non-negative values below 2³², without a libm call.
+        let (lo, hi1) = (lo.clamp(fx0, fx1), hi.clamp(fx0 - 1.0, fx1) + 1.0);
         #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         let (a, b) = {
-            let (t, u) = (lo as u32, hi as u32);
-            (t + u32::from(f64::from(t) < lo), u + 1)
+            let t = lo as u32;
+            (t + u32::from(f64::from(t) < lo), (hi1 as u32).min(x1))
         };
-        a..b.min(x1).max(a)
+        if b > a {
+            a..b
+        } else {
+            x0..x0
+        }
     }
 
     /// The pixels of row `y` that may be inside, widened by a pixel each side and clipped

@@ -309,6 +309,27 @@ fn row_candidates_hold_every_pixel_the_exact_tests_pass_and_runs_only_such_pixel
                         );
                     }
                     exact_runs += usize::from(run.len() == n);
+                    // Clipped to any window (a tile's edge cuts a brick's footprint), a run
+                    // keeps only passing pixels of the window, even where the region lies
+                    // wholly on one side of it.
+                    let region = spans.region(&ibox, core).expect("orthographic");
+                    for (w0, w1) in [
+                        (rect.x0, rect.x0 + 1),
+                        (rect.x1 - 1, rect.x1),
+                        (rect.x0 + rect.width() / 2, rect.x1),
+                        (rect.x0, rect.x0 + rect.width() / 3),
+                    ] {
+                        let clipped = region.run(y, (w0, w1));
+                        assert!(
+                            clipped.is_empty() || (w0 <= clipped.start && clipped.end <= w1),
+                            "{clipped:?} outside {w0}..{w1}"
+                        );
+                        assert_eq!(
+                            clipped.len(),
+                            run.clone().filter(|x| (w0..w1).contains(x)).count(),
+                            "view {az},{el} brick {id:?} core {core:?} row {y}: window {w0}..{w1}"
+                        );
+                    }
                 }
             }
         }
