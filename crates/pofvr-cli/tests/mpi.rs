@@ -22,8 +22,29 @@ fn have_mpirun() -> bool {
 
 /// `pofvr ARGS` as `np` MPI ranks.
 fn mpirun(np: usize, args: &[&str], dir: &Path) -> (Output, Duration) {
-    let t = Instant::now();
-    let out = Command::new("mpirun")
+    // OpenMPI's launcher has been seen, once in many runs, to hang after every rank had
+    // exited (the ranks left as zombies, `mpirun` deaf to SIGTERM): a launcher fault, not
+    // pofvr's. A run that outlives the deadline is killed and tried once more, so that such
+    // a hang fails loudly at worst instead of stalling the suite.
+    const DEADLINE: Duration = Duration::from_secs(60);
+    for attempt in 1..=2 {
+        let t = Instant::now();
+        if let Some(out) = run_with_deadline(np, args, dir, DEADLINE) {
+            return (out, t.elapsed());
+        }
+        eprintln!(
+            "mpirun -np {np} {args:?}: no exit after {DEADLINE:?} (attempt {attempt}), killed"
+        );
+    }
+    panic!("mpirun -np {np} {args:?} hung twice");
+}
+
+/// `pofvr ARGS` under `mpirun -np NP`, its output, or `None` (the launcher killed) when it
+/// has not exited after `deadline`.
+fn run_with_deadline(np: usize, args: &[&str], dir: &Path, deadline: Duration) -> Option<Output> {
+    use std::io::Read;
+    use std::process::Stdio;
+    let mut child = Command::new("mpirun")
         .args([
             "--allow-run-as-root",
             "--oversubscribe",
@@ -34,9 +55,38 @@ fn mpirun(np: usize, args: &[&str], dir: &Path) -> (Output, Duration) {
         .arg(env!("CARGO_BIN_EXE_pofvr"))
         .args(args)
         .current_dir(dir)
-        .output()
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
         .expect("run mpirun");
-    (out, t.elapsed())
+    // Both pipes drained as the job runs, so that a chatty job cannot block on a full pipe.
+    let drain = |mut r: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut v = Vec::new();
+            let _ = r.read_to_end(&mut v);
+            v
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().expect("piped")));
+    let err = drain(Box::new(child.stderr.take().expect("piped")));
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait for mpirun") {
+            break status;
+        }
+        if start.elapsed() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            // (The readers are left behind: a rank still alive may hold the pipes open.)
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    Some(Output {
+        status,
+        stdout: out.join().unwrap_or_default(),
+        stderr: err.join().unwrap_or_default(),
+    })
 }
 
 /// `pofvr ARGS` in this process's ranks (no MPI launcher in the environment).
