@@ -107,6 +107,17 @@ fn text(out: &Output) -> String {
     )
 }
 
+/// The ranks of a frame's `--stats` rendered as many bricks as were visible.
+fn assert_each_visible_brick_rendered_once(s: &serde_json::Value) {
+    let rendered: u64 = s["ranks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["bricks_rendered"].as_u64().unwrap())
+        .sum();
+    assert_eq!(rendered, s["bricks"]["visible"].as_u64().unwrap(), "{s}");
+}
+
 fn floats(path: &Path) -> Vec<f32> {
     std::fs::read(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -208,13 +219,7 @@ fn one_to_four_mpi_ranks_give_the_in_process_frame_for_both_curves() {
                     "{curve} -np {np}: a rank holds {c} of {total} bytes: {copies:?}"
                 );
             }
-            let rendered: u64 = s["ranks"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|r| r["bricks_rendered"].as_u64().unwrap())
-                .sum();
-            assert_eq!(rendered, s["bricks"]["visible"].as_u64().unwrap(), "{s}");
+            assert_each_visible_brick_rendered_once(&s);
             if np > 1 {
                 assert!(
                     s["ranks"][1]["bytes_sent"].as_u64().unwrap() > 0,
@@ -237,13 +242,7 @@ fn two_replicas_under_mpi_hold_every_brick_twice_and_give_the_same_frame() {
     let copies = |stats: &str| -> Vec<u64> {
         let s: serde_json::Value =
             serde_json::from_slice(&std::fs::read(d.join(stats)).unwrap()).unwrap();
-        let rendered: u64 = s["ranks"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|r| r["bricks_rendered"].as_u64().unwrap())
-            .sum();
-        assert_eq!(rendered, s["bricks"]["visible"].as_u64().unwrap(), "{s}");
+        assert_each_visible_brick_rendered_once(&s);
         s["memory"]
             .as_array()
             .unwrap()

@@ -181,6 +181,34 @@ fn build_phantom_pof(d: &std::path::Path, name: &str, brick: &str, core: &str) {
     );
 }
 
+/// `pofvr render` of the 48³ phantom in `d` with `extra` arguments, the first of `pofs` as
+/// `--pof` and the others as `--pof-level`, into `o.png` and `s.json`.
+fn render_with_pofs(d: &std::path::Path, extra: &[&str], pofs: &[&str]) -> std::process::Output {
+    let mut c = pofvr();
+    c.current_dir(d).args([
+        "render",
+        "phantom:head:48",
+        "--size",
+        "48x48",
+        "--view",
+        "30,20",
+        "--weights",
+        "3,1",
+        "--quiet",
+        "--stats",
+        "s.json",
+        "--out",
+        "o.png",
+        "--pof",
+        pofs[0],
+    ]);
+    c.args(extra);
+    for l in &pofs[1..] {
+        c.args(["--pof-level", l]);
+    }
+    c.output().unwrap()
+}
+
 #[test]
 fn render_takes_pof_levels_and_refuses_two_of_one_core_length() {
     let dir = tempfile::tempdir().unwrap();
@@ -189,33 +217,8 @@ fn render_takes_pof_levels_and_refuses_two_of_one_core_length() {
     build("l4.pof", "4");
     build("l7.pof", "7");
     build("l4b.pof", "4");
-    let render = |levels: &[&str]| {
-        let mut c = pofvr();
-        c.current_dir(d).args([
-            "render",
-            "phantom:head:48",
-            "--brick",
-            "8",
-            "--size",
-            "48x48",
-            "--view",
-            "30,20",
-            "--weights",
-            "3,1",
-            "--pof",
-            "l4.pof",
-            "--quiet",
-            "--stats",
-            "s.json",
-            "--out",
-            "o.png",
-        ]);
-        for l in levels {
-            c.args(["--pof-level", l]);
-        }
-        c.output().unwrap()
-    };
-    let out = render(&["l7.pof"]);
+    let render = |level: &str| render_with_pofs(d, &["--brick", "8"], &["l4.pof", level]);
+    let out = render("l7.pof");
     assert!(
         out.status.success(),
         "{}",
@@ -225,7 +228,7 @@ fn render_takes_pof_levels_and_refuses_two_of_one_core_length() {
         serde_json::from_slice(&std::fs::read(d.join("s.json")).unwrap()).unwrap();
     assert_eq!(stats["cull"], "pof");
     std::fs::remove_file(d.join("o.png")).unwrap();
-    let out = render(&["l4b.pof"]);
+    let out = render("l4b.pof");
     assert_eq!(out.status.code(), Some(2));
     let e = String::from_utf8_lossy(&out.stderr);
     assert!(
@@ -244,30 +247,7 @@ fn render_takes_sub_brick_pofs_beside_its_own_and_refuses_two_sub_brick_sizes() 
     build("b8.pof", "8", "4");
     build("b8l7.pof", "8", "7");
     build("b4.pof", "4", "2");
-    let render = |pofs: &[&str]| {
-        let mut c = pofvr();
-        c.current_dir(d).args([
-            "render",
-            "phantom:head:48",
-            "--size",
-            "48x48",
-            "--view",
-            "30,20",
-            "--weights",
-            "3,1",
-            "--quiet",
-            "--stats",
-            "s.json",
-            "--out",
-            "o.png",
-            "--pof",
-            pofs[0],
-        ]);
-        for l in &pofs[1..] {
-            c.args(["--pof-level", l]);
-        }
-        c.output().unwrap()
-    };
+    let render = |pofs: &[&str]| render_with_pofs(d, &[], pofs);
     for pofs in [
         &["b8.pof"][..],
         &["b8.pof", "b8l7.pof"],

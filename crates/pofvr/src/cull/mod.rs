@@ -396,8 +396,8 @@ impl Culler<'_> {
     pub fn cull(&self, camera: &Camera, bricks: &FrameBricks, tile: PixelRect) -> CullResult {
         let start = Instant::now();
         let strips = strips_of(tile, self.mode);
+        let mine = bricks_over(bricks, tile, &strips);
         if strips.len() == 1 {
-            let mine = bricks_over(bricks, &strips);
             let mut out = self.cull_strip(camera, tile, &mine[0]);
             out.cull_ms = start.elapsed().as_secs_f64() * 1e3;
             return out;
@@ -405,7 +405,6 @@ impl Culler<'_> {
         // Culling walks the bricks in order over one buffer, so it runs on one core; cut into
         // strips, each culled as a tile of its own (as the ranks' tiles are), it runs on all
         // of them. A brick is visible when it is in any strip, culled when in none.
-        let mine = bricks_over(bricks, &strips);
         let parts: Vec<CullResult> = strips
             .par_iter()
             .zip(&mine)
@@ -814,18 +813,14 @@ fn strips_of(tile: PixelRect, mode: CullMode) -> Vec<PixelRect> {
         .collect()
 }
 
-/// The bricks over each of `strips` (rows of one tile, in order, of equal height give or take
-/// a row), in visibility order, with their footprint in the strip: one pass over the
-/// frame's bricks for all strips.
-fn bricks_over(bricks: &FrameBricks, strips: &[PixelRect]) -> Vec<Vec<(BrickId, PixelRect)>> {
+/// The bricks over each of `strips` (the rows of `tile`, in order), in visibility order,
+/// with their footprint in the strip: one pass over the frame's bricks for all strips.
+fn bricks_over(
+    bricks: &FrameBricks,
+    tile: PixelRect,
+    strips: &[PixelRect],
+) -> Vec<Vec<(BrickId, PixelRect)>> {
     let mut out = vec![Vec::new(); strips.len()];
-    let (Some(first), Some(last)) = (strips.first(), strips.last()) else {
-        return out;
-    };
-    let tile = PixelRect {
-        y1: last.y1,
-        ..*first
-    };
     for &id in &bricks.order {
         let Some(rect) = bricks.footprints[id.index()].and_then(|r| r.intersect(&tile)) else {
             continue;
