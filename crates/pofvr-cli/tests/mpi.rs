@@ -26,7 +26,7 @@ fn mpirun(np: usize, args: &[&str], dir: &Path) -> (Output, Duration) {
     // exited (the ranks left as zombies, `mpirun` deaf to SIGTERM): a launcher fault, not
     // pofvr's. A run that outlives the deadline is killed and tried once more, so that such
     // a hang fails loudly at worst instead of stalling the suite.
-    const DEADLINE: Duration = Duration::from_secs(60);
+    const DEADLINE: Duration = Duration::from_secs(20);
     for attempt in 1..=2 {
         let t = Instant::now();
         if let Some(out) = run_with_deadline(np, args, dir, DEADLINE) {
