@@ -520,13 +520,16 @@ fn sub_brick_case(weights: &[f32]) -> usize {
     let both =
         CoreLevels::from(own).with_sub_bricks(CoreLevels::from(table(2.0)).with_grid(fine.clone()));
     assert!(both.grid().is_none() && both.sub_bricks().is_some());
+    let own_only = CoreLevels::from(pof_table(&j, &j.grid, None));
     let mut culled = 0;
     for (az, el, p) in LEVEL_VIEWS {
         let c = cam(&j, az, el, p);
         let (reference, _) = render_reference(&j, &c);
+        let mut by_name = std::collections::HashMap::new();
         for (levels, name) in [
             (&one, "one level"),
             (&two, "two levels"),
+            (&own_only, "own level"),
             (&both, "own and sub-brick levels"),
         ] {
             let mut frames = Vec::new();
@@ -540,6 +543,9 @@ fn sub_brick_case(weights: &[f32]) -> usize {
                 let (img, st) = render_frame(&j, Some(levels), &c, &opts).unwrap();
                 assert_conservative(&reference, &img, 0.95, &format!("{name} {az},{el}"));
                 culled += st.bricks.culled;
+                if ranks == 1 {
+                    by_name.insert(name, st.bricks.culled);
+                }
                 frames.push(img);
             }
             assert_eq!(
@@ -548,8 +554,61 @@ fn sub_brick_case(weights: &[f32]) -> usize {
                 "{name} {az},{el}: 1 vs 3 ranks"
             );
         }
+        // Each pixel takes the higher of the two bounds, so together they cull what either
+        // culls alone (skipping the sub-bricks where the brick's own bound suffices must
+        // keep that).
+        let both = by_name["own and sub-brick levels"];
+        assert!(
+            both >= by_name["own level"] && both >= by_name["one level"],
+            "{az},{el}: {by_name:?}"
+        );
     }
     culled
+}
+
+#[test]
+fn leaving_out_sub_bricks_where_the_bricks_own_bound_suffices_changes_nothing() {
+    // The skull left out (bone weight 0), the brain opaque: bricks at the brain's edge are partly empty,
+    // where only sub-bricks bound anything, and bricks inside are opaque on their own.
+    let j = job(64, &[3.0, 0.0]);
+    let fine = BrickGrid::from_volume(&j.volume, 4).unwrap();
+    let both = CoreLevels::from(pof_table(&j, &j.grid, None))
+        .with_sub_bricks(CoreLevels::from(pof_table(&j, &fine, Some(2.0))).with_grid(fine));
+    let own = CoreLevels::from(pof_table(&j, &j.grid, None));
+    let opts = FrameOptions {
+        cull: CullMode::Pof,
+        cull_threshold: 0.95,
+        ..FrameOptions::default()
+    };
+    let mut gained = 0;
+    for (az, el, p) in LEVEL_VIEWS {
+        let c = cam(&j, az, el, p);
+        let (_, st_own) = render_frame(&j, Some(&own), &c, &opts).unwrap();
+        let mut runs = Vec::new();
+        for skip in [true, false] {
+            SKIP_SUB_BRICKS.store(skip, std::sync::atomic::Ordering::Relaxed);
+            runs.push(render_frame(&j, Some(&both), &c, &opts).unwrap());
+        }
+        SKIP_SUB_BRICKS.store(true, std::sync::atomic::Ordering::Relaxed);
+        let ((with, st_with), (without, st_without)) = (&runs[0], &runs[1]);
+        let differ = with
+            .pixels()
+            .iter()
+            .zip(without.pixels())
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(differ, 0, "{az},{el}: pixels that differ");
+        assert_eq!(st_with.bricks.culled, st_without.bricks.culled, "{az},{el}");
+        eprintln!(
+            "view {az},{el}: culled by the own bound / with sub-bricks {} / {}",
+            st_own.bricks.culled, st_with.bricks.culled
+        );
+        gained += st_with.bricks.culled.saturating_sub(st_own.bricks.culled);
+    }
+    assert!(
+        gained > 0,
+        "sub-bricks cull more somewhere, or the case tests nothing"
+    );
 }
 
 #[test]
