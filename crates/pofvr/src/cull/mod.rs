@@ -557,6 +557,14 @@ impl Culler<'_> {
                     // rectangle to the threshold, the sub-bricks cannot change what is culled
                     // (a pixel at the threshold stays there), and their eight lookups and
                     // composites, most of the culling time, are saved.
+                    self.grid.sub_bricks_into(id, fine, &mut subs);
+                    if ortho {
+                        // Each lookup is a cache miss in a table of many megabytes: start
+                        // them all now, to arrive while the brick's own bound is composited.
+                        sub_ids.clear();
+                        sub_ids.extend(subs.iter().map(|(cid, _)| *cid));
+                        sub.bounds[0].prefetch(&sub_ids, frame.forward);
+                    }
                     own_t.clear();
                     own_t.resize(rect.area(), 1.0);
                     if !own.bounds.is_empty() {
@@ -573,7 +581,7 @@ impl Culler<'_> {
                                 .all(|(b, t)| b + (1.0 - b) * (1.0 - t).min(cap) >= self.threshold)
                         });
                         if enough && may_skip_sub_bricks() {
-                            flush(&mut buffer, &own_t, rw, cap, at);
+                            flush(&mut buffer, &own_t, None, rw, cap, at);
                             continue;
                         }
                     }
@@ -583,22 +591,12 @@ impl Culler<'_> {
                         t: &mut scratch,
                         rect,
                     };
-                    self.grid.sub_bricks_into(id, fine, &mut subs);
-                    if ortho {
-                        // Each lookup is a cache miss in a table of many megabytes: start
-                        // them all before waiting on the first.
-                        sub_ids.clear();
-                        sub_ids.extend(subs.iter().map(|(cid, _)| *cid));
-                        sub.bounds[0].prefetch(&sub_ids, frame.forward);
-                    }
                     for (cid, cbox) in &subs {
                         self.composite_bound(&sub, &view, *cid, cbox, rect, &mut into);
                     }
                     // The brick's own bound, where higher, bounds the same stretch of ray.
-                    for (t, o) in scratch.iter_mut().zip(&own_t) {
-                        *t = t.min(*o);
-                    }
-                    flush(&mut buffer, &scratch, rw, cap, at);
+                    let own_t = (!own.bounds.is_empty()).then_some(own_t.as_slice());
+                    flush(&mut buffer, &scratch, own_t, rw, cap, at);
                 }
             }
         }
@@ -816,12 +814,30 @@ fn may_skip_sub_bricks() -> bool {
 }
 
 /// Composites a brick's transparency image `t` (rows of `rw` pixels; row `r` at `at(r)` in
-/// `buffer`) into the opacity buffer, each pixel's opacity capped at `cap`.
-fn flush(buffer: &mut [f32], t: &[f32], rw: usize, cap: f32, at: impl Fn(usize) -> usize) {
+/// `buffer`), or where lower the image `lower` of the same stretch of ray, into the opacity
+/// buffer, each pixel's opacity capped at `cap`.
+fn flush(
+    buffer: &mut [f32],
+    t: &[f32],
+    lower: Option<&[f32]>,
+    rw: usize,
+    cap: f32,
+    at: impl Fn(usize) -> usize,
+) {
     for (r, ts) in t.chunks_exact(rw).enumerate() {
         let start = at(r);
-        for (b, t) in buffer[start..start + rw].iter_mut().zip(ts) {
-            *b += (1.0 - *b) * (1.0 - t).min(cap);
+        let row = &mut buffer[start..start + rw];
+        match lower {
+            Some(l) => {
+                for ((b, t), o) in row.iter_mut().zip(ts).zip(&l[r * rw..(r + 1) * rw]) {
+                    *b += (1.0 - *b) * (1.0 - t.min(*o)).min(cap);
+                }
+            }
+            None => {
+                for (b, t) in row.iter_mut().zip(ts) {
+                    *b += (1.0 - *b) * (1.0 - t).min(cap);
+                }
+            }
         }
     }
 }
