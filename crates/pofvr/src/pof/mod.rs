@@ -756,23 +756,29 @@ impl PofTable {
         self.cell_opacity(self.record(s), cell, weights, mode)
     }
 
-    /// [`PofTable::cell_of`], remembered per thread for the last direction: a frame asks
+    /// [`PofTable::cell_of`], remembered per thread for the last directions: a frame asks
     /// for one direction thousands of times (orthographic views), and the angles cost an
-    /// `acos` and an `atan2`.
+    /// `acos` and an `atan2`. A few entries, not one: tables of different view grids (core
+    /// levels, sub-bricks) are looked up in turn, and one entry would miss every time.
     fn cell_of_cached(&self, dir: DVec3) -> (usize, usize) {
         type Key = ([u64; 3], [u32; 2]);
+        type Entry = Option<(Key, (usize, usize))>;
+        const WAYS: usize = 4;
         thread_local! {
-            static LAST: std::cell::Cell<Option<(Key, (usize, usize))>> =
-                const { std::cell::Cell::new(None) };
+            // The entries and the next one to replace.
+            static LAST: std::cell::Cell<([Entry; WAYS], usize)> =
+                const { std::cell::Cell::new(([None; WAYS], 0)) };
         }
         let key = (dir.to_array().map(f64::to_bits), self.meta.views);
-        LAST.with(|last| match last.get() {
-            Some((k, cell)) if k == key => cell,
-            _ => {
-                let cell = self.cell_of(dir);
-                last.set(Some((key, cell)));
-                cell
+        LAST.with(|last| {
+            let (mut ways, next) = last.get();
+            if let Some((_, cell)) = ways.iter().flatten().find(|(k, _)| *k == key) {
+                return *cell;
             }
+            let cell = self.cell_of(dir);
+            ways[next] = Some((key, cell));
+            last.set((ways, (next + 1) % WAYS));
+            cell
         })
     }
 

@@ -905,3 +905,37 @@ fn record_values_are_read_where_the_record_writer_put_them() {
         }
     }
 }
+
+#[test]
+fn cached_view_cells_stay_right_when_tables_of_other_grids_take_turns() {
+    // Core levels and sub-brick tables of other view grids are looked up in turn, on one
+    // thread, for the same directions: each must get its own grid's cell.
+    let s = phantom(32);
+    let grids = [[4, 6], [5, 7], [3, 3], [6, 4], [7, 5]];
+    let tables: Vec<PofTable> = grids
+        .iter()
+        .map(|v| {
+            table(
+                &s,
+                &PofSettings {
+                    views: *v,
+                    ..small_views()
+                },
+            )
+        })
+        .collect();
+    let mut rng = seeded_rng();
+    let dirs: Vec<DVec3> = (0..6).map(|_| random_dir(&mut rng)).collect();
+    for round in 0..3 {
+        for (k, d) in dirs.iter().enumerate() {
+            for t in tables.iter().cycle().skip(k + round).take(2 * tables.len()) {
+                assert_eq!(
+                    t.cell_of_cached(*d),
+                    t.cell_of(*d),
+                    "{:?} {d}",
+                    t.meta.views
+                );
+            }
+        }
+    }
+}
