@@ -901,8 +901,9 @@ static BUFFERS: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new
 /// needs: the left bounds `x ≥ p + q·y`, the right bounds `x ≤ p + q·y` and the rows.
 #[derive(Clone, Copy)]
 struct Region {
-    left: [(f64, f64); MAX_PLANES],
-    right: [(f64, f64); MAX_PLANES],
+    /// The left bounds first, the right bounds from the end: a region has at most
+    /// [`MAX_PLANES`] of both together, and it is copied about, so it is kept small.
+    lines: [(f64, f64); MAX_PLANES],
     n_left: usize,
     n_right: usize,
     /// Rows `y_lo ≤ y ≤ y_hi` (from the half-planes that do not depend on x).
@@ -914,7 +915,8 @@ struct Region {
 }
 
 /// The most half-planes of a region that depend on x: three far-plane bounds and six
-/// far-after-near pairs of three slabs.
+/// far-after-near pairs of three slabs (with a slab parallel to the rays, fewer: its two
+/// bounds replace four pairs).
 const MAX_PLANES: usize = 9;
 
 /// How far inside its bounds a pixel must be to count as surely in a [`Region`], in pixels:
@@ -924,8 +926,7 @@ const REGION_MARGIN: f64 = 1e-6;
 impl Region {
     fn new() -> Self {
         Region {
-            left: [(0.0, 0.0); MAX_PLANES],
-            right: [(0.0, 0.0); MAX_PLANES],
+            lines: [(0.0, 0.0); MAX_PLANES],
             n_left: 0,
             n_right: 0,
             y_lo: f64::NEG_INFINITY,
@@ -951,13 +952,18 @@ impl Region {
             return;
         }
         self.finite &= inv.is_finite();
+        // Left and right bounds share one array from both ends.
+        assert!(
+            self.n_left + self.n_right < MAX_PLANES,
+            "a region has at most {MAX_PLANES} bounds that depend on x"
+        );
         let line = (-c0 * inv, -cy * inv);
         if cx > 0.0 {
-            self.left[self.n_left] = line;
+            self.lines[self.n_left] = line;
             self.n_left += 1;
         } else {
-            self.right[self.n_right] = line;
             self.n_right += 1;
+            self.lines[MAX_PLANES - self.n_right] = line;
         }
     }
 
@@ -970,11 +976,11 @@ impl Region {
             return (f64::INFINITY, f64::NEG_INFINITY);
         }
         let mut lo = f64::NEG_INFINITY;
-        for &(p, q) in &self.left[..self.n_left] {
+        for &(p, q) in &self.lines[..self.n_left] {
             lo = lo.max(p + q * fy);
         }
         let mut hi = f64::INFINITY;
-        for &(p, q) in &self.right[..self.n_right] {
+        for &(p, q) in &self.lines[MAX_PLANES - self.n_right..] {
             hi = hi.min(p + q * fy);
         }
         (lo, hi)

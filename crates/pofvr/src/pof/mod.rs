@@ -765,19 +765,18 @@ impl PofTable {
         type Entry = Option<(Key, (usize, usize))>;
         const WAYS: usize = 4;
         thread_local! {
-            // The entries and the next one to replace.
-            static LAST: std::cell::Cell<([Entry; WAYS], usize)> =
-                const { std::cell::Cell::new(([None; WAYS], 0)) };
+            // The entries and the next one to replace (borrowed in place, not copied out).
+            static LAST: std::cell::RefCell<([Entry; WAYS], usize)> =
+                const { std::cell::RefCell::new(([None; WAYS], 0)) };
         }
         let key = (dir.to_array().map(f64::to_bits), self.meta.views);
-        LAST.with(|last| {
-            let (mut ways, next) = last.get();
+        LAST.with_borrow_mut(|(ways, next)| {
             if let Some((_, cell)) = ways.iter().flatten().find(|(k, _)| *k == key) {
                 return *cell;
             }
             let cell = self.cell_of(dir);
-            ways[next] = Some((key, cell));
-            last.set((ways, (next + 1) % WAYS));
+            ways[*next] = Some((key, cell));
+            *next = (*next + 1) % WAYS;
             cell
         })
     }
