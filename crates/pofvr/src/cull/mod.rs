@@ -495,9 +495,10 @@ impl Culler<'_> {
                 out.visible.push(id);
                 continue;
             }
-            let ibox = self.grid.index_box(id);
             // Occluded when every pixel whose ray meets the brick is opaque enough; the
-            // cheap test over the whole rectangle settles most bricks.
+            // cheap test over the whole rectangle settles most bricks, without the brick's
+            // box.
+            let mut ibox = None;
             let mut hit_region = None;
             let occluded = (rect.y0..rect.y1).all(|y| {
                 let start = (y - tile.y0) as usize * tw + (rect.x0 - tile.x0) as usize;
@@ -508,18 +509,20 @@ impl Culler<'_> {
                 if all_at_least(row, self.threshold) {
                     return true;
                 }
+                let ib = *ibox.get_or_insert_with(|| self.grid.index_box(id));
                 let xs = hit_region
-                    .get_or_insert_with(|| spans.region(&ibox, None))
+                    .get_or_insert_with(|| spans.region(&ib, None))
                     .as_ref()
                     .map_or(rect.x0..rect.x1, |r| r.candidates(y, (rect.x0, rect.x1)));
                 let row = &row[(xs.start - rect.x0) as usize..(xs.end - rect.x0) as usize];
                 !xs.zip(row)
-                    .any(|(x, b)| *b < self.threshold && spans.hits(x, y, &ibox))
+                    .any(|(x, b)| *b < self.threshold && spans.hits(x, y, &ib))
             });
             if occluded {
                 out.culled.push(id);
                 continue;
             }
+            let ibox = ibox.unwrap_or_else(|| self.grid.index_box(id));
             out.visible.push(id);
             match self.mode {
                 CullMode::None => {}
