@@ -568,9 +568,10 @@ impl Culler<'_> {
                         sub_ids.extend(subs.iter().map(|(cid, _)| *cid));
                         sub.bounds[0].prefetch(&sub_ids, frame.forward);
                     }
-                    own_t.clear();
-                    own_t.resize(rect.area(), 1.0);
-                    if !own.bounds.is_empty() {
+                    let has_own = !own.bounds.is_empty();
+                    if has_own {
+                        own_t.clear();
+                        own_t.resize(rect.area(), 1.0);
                         let mut into = Sink::Transparency {
                             t: &mut own_t,
                             rect,
@@ -598,7 +599,7 @@ impl Culler<'_> {
                         self.composite_bound(&sub, &view, *cid, cbox, rect, &mut into);
                     }
                     // The brick's own bound, where higher, bounds the same stretch of ray.
-                    let own_t = (!own.bounds.is_empty()).then_some(own_t.as_slice());
+                    let own_t = has_own.then_some(own_t.as_slice());
                     flush(&mut buffer, &scratch, own_t, rw, cap, at);
                 }
             }
