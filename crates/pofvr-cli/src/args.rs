@@ -296,4 +296,10 @@ pub(crate) struct BenchCullArgs {
     /// > default: bench-cull.json
     #[arg(long, default_value = "bench-cull.json")]
     pub(crate) out: PathBuf,
+    /// Also measure the culled fractions and the 32-rank balance (no timings: they are
+    /// deterministic) at this many views spread evenly over the sphere, and report their
+    /// mean and worst: one view can be lucky or unlucky.
+    /// > default: 0 (none)
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub(crate) sweep: usize,
 }

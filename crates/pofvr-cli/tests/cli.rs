@@ -351,6 +351,63 @@ fn an_error_names_its_cause_once() {
 }
 
 #[test]
+fn bench_cull_sweep_reports_each_view_and_their_mean_and_worst() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = pofvr(
+        &[
+            "bench",
+            "cull",
+            "phantom:head:48",
+            "--size",
+            "64x64",
+            "--reps",
+            "1",
+            "--sweep",
+            "3",
+            "--quiet",
+            "--out",
+            "b.json",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("b.json")).unwrap()).unwrap();
+    let views = r["sweep"]["views"].as_array().unwrap();
+    assert_eq!(views.len(), 3, "{r}");
+    let f = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} in {v}"));
+    let gaps: Vec<f64> = views
+        .iter()
+        .map(|v| {
+            for k in [
+                "culled_fraction_pof",
+                "culled_fraction_pof_set",
+                "culled_fraction_exact",
+            ] {
+                assert!((0.0..=1.0).contains(&f(v, k)), "{k} in {v}");
+            }
+            for k in ["balance_32", "balance_32_replicas_2"] {
+                assert!(f(v, k) >= 1.0, "{k} in {v}");
+            }
+            100.0 * (f(v, "culled_fraction_exact") - f(v, "culled_fraction_pof"))
+        })
+        .collect();
+    let s = &r["sweep"]["points_below_exact_pof"];
+    let mean = gaps.iter().sum::<f64>() / 3.0;
+    let worst = gaps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert!((f(s, "mean") - mean).abs() < 1e-9, "{s} vs {gaps:?}");
+    assert!((f(s, "worst") - worst).abs() < 1e-9, "{s} vs {gaps:?}");
+    let b = &r["sweep"]["balance_32"];
+    assert!(f(b, "worst") >= f(b, "mean"), "{b}");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("sweep load balance at 32 ranks (1 replica)"),
+        "{text}"
+    );
+}
+
+#[test]
 fn bench_cull_reports_every_case_and_each_target_in_one_run() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -179,11 +179,6 @@ fn cull_case(
     runs.sort_by(|a, b| a.frame_ms.total_cmp(&b.frame_ms));
     let st = &runs[runs.len() / 2];
     #[allow(clippy::cast_precision_loss)]
-    let mean =
-        st.ranks.iter().map(|r| r.samples as f64).sum::<f64>() / st.ranks.len().max(1) as f64;
-    #[allow(clippy::cast_precision_loss)]
-    let max = st.ranks.iter().map(|r| r.samples).max().unwrap_or(0) as f64;
-    #[allow(clippy::cast_precision_loss)]
     CullCase {
         mode: mode.name(),
         ranks,
@@ -195,7 +190,7 @@ fn cull_case(
         non_empty: st.bricks.non_empty,
         culled_fraction: st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64,
         samples: st.samples,
-        load_balance_max_over_mean_samples: if mean > 0.0 { max / mean } else { 1.0 },
+        load_balance_max_over_mean_samples: balance(st),
     }
 }
 
@@ -279,6 +274,106 @@ fn cull_targets(cases: &[CullCase], speedup: Option<f64>) -> Vec<Target> {
         );
     }
     out
+}
+
+/// One view of `bench cull --sweep`.
+#[derive(Serialize)]
+struct SweepView {
+    azimuth: f64,
+    elevation: f64,
+    /// Share of the non-empty bricks culled, per mode (1 rank).
+    culled_fraction_pof: f64,
+    culled_fraction_pof_set: f64,
+    culled_fraction_exact: f64,
+    /// Max / mean samples rendered at 32 ranks, the paper's deal and two owners per brick.
+    balance_32: f64,
+    balance_32_replicas_2: f64,
+}
+
+/// Mean and worst of a measure over the sweep's views.
+#[derive(Serialize)]
+struct Spread {
+    mean: f64,
+    worst: f64,
+    /// The view (azimuth, elevation) of the worst.
+    worst_view: [f64; 2],
+}
+
+/// `n` views spread evenly over the sphere: equal steps of sin(elevation), azimuths turned
+/// by the golden angle (a Fibonacci sphere), so that no axis or plane is favoured.
+fn sweep_views(n: usize) -> Vec<[f64; 2]> {
+    const GOLDEN_ANGLE: f64 = 137.507_764_050_037_85;
+    #[allow(clippy::cast_precision_loss)]
+    (0..n)
+        .map(|k| {
+            let z = (k as f64 + 0.5) / n as f64 * 2.0 - 1.0;
+            [(k as f64 * GOLDEN_ANGLE) % 360.0, z.asin().to_degrees()]
+        })
+        .collect()
+}
+
+fn balance(st: &pofvr::frame::FrameStats) -> f64 {
+    #[allow(clippy::cast_precision_loss)]
+    let mean =
+        st.ranks.iter().map(|r| r.samples as f64).sum::<f64>() / st.ranks.len().max(1) as f64;
+    #[allow(clippy::cast_precision_loss)]
+    let max = st.ranks.iter().map(|r| r.samples).max().unwrap_or(0) as f64;
+    if mean > 0.0 {
+        max / mean
+    } else {
+        1.0
+    }
+}
+
+/// The culled fractions and the 32-rank balance at each of `views`.
+fn sweep(
+    job: &RenderJob,
+    bounds: Option<&dyn OpacityBound>,
+    views: &[[f64; 2]],
+    (w, h): (u32, u32),
+    ui: &Ui,
+) -> Result<Vec<SweepView>> {
+    let pb = ui.bar(views.len() as u64, "bench cull --sweep");
+    let mut out = Vec::with_capacity(views.len());
+    for &[az, el] in views {
+        let cam = Camera::orbit(&job.volume, az, el, w, h, Projection::Orthographic);
+        let run = |cull, ranks, replicas| {
+            let opts = FrameOptions {
+                cull,
+                ranks,
+                replicas,
+                ..FrameOptions::default()
+            };
+            render_frame(job, bounds, &cam, &opts).map(|(_, st)| st)
+        };
+        #[allow(clippy::cast_precision_loss)]
+        let fraction = |st: &pofvr::frame::FrameStats| {
+            st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64
+        };
+        out.push(SweepView {
+            azimuth: az,
+            elevation: el,
+            culled_fraction_pof: fraction(&run(CullMode::Pof, 1, 1)?),
+            culled_fraction_pof_set: fraction(&run(CullMode::PofSet, 1, 1)?),
+            culled_fraction_exact: fraction(&run(CullMode::Exact, 1, 1)?),
+            balance_32: balance(&run(CullMode::Pof, 32, 1)?),
+            balance_32_replicas_2: balance(&run(CullMode::Pof, 32, 2)?),
+        });
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    Ok(out)
+}
+
+/// Mean and worst (largest) of `f` over the sweep.
+fn spread(rows: &[SweepView], f: impl Fn(&SweepView) -> f64) -> Option<Spread> {
+    let worst = rows.iter().max_by(|a, b| f(a).total_cmp(&f(b)))?;
+    #[allow(clippy::cast_precision_loss)]
+    Some(Spread {
+        mean: rows.iter().map(&f).sum::<f64>() / rows.len() as f64,
+        worst: f(worst),
+        worst_view: [worst.azimuth, worst.elevation],
+    })
 }
 
 pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
@@ -446,10 +541,30 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
             if t.met { "met" } else { "MISSED" }
         );
     }
+    let sweep_rows = if a.sweep > 0 {
+        let views = sweep_views(a.sweep);
+        let rows = sweep(&job, bounds, &views, (w, h), ui)?;
+        print_sweep(&rows);
+        Some(rows)
+    } else {
+        None
+    };
+    let sweep_report = sweep_rows.as_ref().map(|rows| {
+        let points =
+            |f: fn(&SweepView) -> f64| spread(rows, |v| 100.0 * (v.culled_fraction_exact - f(v)));
+        serde_json::json!({
+            "views": rows,
+            "points_below_exact_pof": points(|v| v.culled_fraction_pof),
+            "points_below_exact_pof_set": points(|v| v.culled_fraction_pof_set),
+            "balance_32": spread(rows, |v| v.balance_32),
+            "balance_32_replicas_2": spread(rows, |v| v.balance_32_replicas_2),
+        })
+    });
     let report = serde_json::json!({
         "volume": spec,
         "image": [w, h],
         "view": view,
+        "sweep": sweep_report,
         "threads": rayon::current_num_threads(),
         "speedup_pof_vs_none": speedup,
         "targets": targets,
@@ -466,4 +581,72 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
     pofvr::io::write_bytes_atomic(&a.out, serde_json::to_string_pretty(&report)?.as_bytes())?;
     println!("report: {}", a.out.display());
     Ok(())
+}
+
+/// The sweep's table and its mean and worst lines.
+fn print_sweep(rows: &[SweepView]) {
+    println!(
+        "sweep over {} views (culled % of non-empty at 1 rank; balance at 32 ranks):",
+        rows.len()
+    );
+    println!(
+        "{:>8} {:>8} {:>7} {:>8} {:>7} {:>11} {:>12}",
+        "azimuth", "elev", "pof %", "pof-set", "exact", "balance 32", "2 replicas"
+    );
+    for v in rows {
+        println!(
+            "{:>8.1} {:>8.1} {:>7.1} {:>8.1} {:>7.1} {:>11.3} {:>12.3}",
+            v.azimuth,
+            v.elevation,
+            100.0 * v.culled_fraction_pof,
+            100.0 * v.culled_fraction_pof_set,
+            100.0 * v.culled_fraction_exact,
+            v.balance_32,
+            v.balance_32_replicas_2
+        );
+    }
+    let line = |what: &str, f: &dyn Fn(&SweepView) -> f64| {
+        if let Some(s) = spread(rows, f) {
+            println!(
+                "sweep {what:<40} mean {:>7.3}  worst {:>7.3} at {:.1},{:.1}",
+                s.mean, s.worst, s.worst_view[0], s.worst_view[1]
+            );
+        }
+    };
+    line("points culled below exact (pof)", &|v| {
+        100.0 * (v.culled_fraction_exact - v.culled_fraction_pof)
+    });
+    line("points culled below exact (pof-set)", &|v| {
+        100.0 * (v.culled_fraction_exact - v.culled_fraction_pof_set)
+    });
+    line("load balance at 32 ranks (1 replica)", &|v| v.balance_32);
+    line("load balance at 32 ranks (2 replicas)", &|v| {
+        v.balance_32_replicas_2
+    });
+}
+
+#[cfg(test)]
+mod test {
+    use super::sweep_views;
+
+    #[test]
+    fn sweep_views_cover_the_sphere_in_equal_area_bands() {
+        let n = 24;
+        let v = sweep_views(n);
+        assert_eq!(v.len(), n);
+        for (k, [az, el]) in v.iter().enumerate() {
+            assert!((0.0..360.0).contains(az), "{az}");
+            assert!(el.abs() < 90.0, "{el}");
+            // Equal steps of sin(elevation): each view stands for the same share of the
+            // sphere's area.
+            #[allow(clippy::cast_precision_loss)]
+            let want = (k as f64 + 0.5) / n as f64 * 2.0 - 1.0;
+            assert!((el.to_radians().sin() - want).abs() < 1e-12, "{k}: {el}");
+        }
+        // Neighbours in elevation are far apart in azimuth, so no meridian is favoured.
+        for w in v.windows(2) {
+            let d = (w[1][0] - w[0][0]).rem_euclid(360.0);
+            assert!(d > 90.0 && d < 270.0, "{w:?}");
+        }
+    }
 }
