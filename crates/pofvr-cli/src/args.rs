@@ -302,4 +302,9 @@ pub(crate) struct BenchCullArgs {
     /// > default: 0 (none)
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub(crate) sweep: usize,
+    /// Also cull with ideal POFs: each brick's core-footprint minimum measured by rendering
+    /// it alone along the view (the tables' core lengths; slow). Between `pof` and
+    /// `exact`, it tells the tables' slack from what one number per brick cannot say.
+    #[arg(long)]
+    pub(crate) ideal: bool,
 }

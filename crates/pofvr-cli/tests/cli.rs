@@ -351,7 +351,7 @@ fn an_error_names_its_cause_once() {
 }
 
 #[test]
-fn bench_cull_sweep_reports_each_view_and_their_mean_and_worst() {
+fn bench_cull_sweep_and_ideal_report_each_view_and_their_mean_and_worst() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let o = pofvr(
@@ -365,6 +365,7 @@ fn bench_cull_sweep_reports_each_view_and_their_mean_and_worst() {
             "1",
             "--sweep",
             "3",
+            "--ideal",
             "--quiet",
             "--out",
             "b.json",
@@ -398,6 +399,11 @@ fn bench_cull_sweep_reports_each_view_and_their_mean_and_worst() {
     let worst = gaps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     assert!((f(s, "mean") - mean).abs() < 1e-9, "{s} vs {gaps:?}");
     assert!((f(s, "worst") - worst).abs() < 1e-9, "{s} vs {gaps:?}");
+    assert!(
+        f(&r["sweep"]["points_below_exact_ideal"], "mean").is_finite(),
+        "{r}"
+    );
+    assert!(r["ideal"]["culled"].as_u64().is_some(), "{r}");
     let b = &r["sweep"]["balance_32"];
     assert!(f(b, "worst") >= f(b, "mean"), "{b}");
     let text = String::from_utf8_lossy(&o.stdout);

@@ -5,6 +5,7 @@ use std::time::Instant;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
+use pofvr::cull::ideal::IdealPofs;
 use pofvr::cull::{CullMode, OpacityBound};
 use pofvr::frame::{render_frame, FrameOptions, RenderJob};
 use pofvr::render::{families, Camera, Projection, RayCaster, RenderSettings};
@@ -285,6 +286,9 @@ struct SweepView {
     culled_fraction_pof: f64,
     culled_fraction_pof_set: f64,
     culled_fraction_exact: f64,
+    /// With `--ideal`: culling with the measured core minima ([`IdealPofs`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    culled_fraction_ideal: Option<f64>,
     /// Max / mean samples rendered at 32 ranks, the paper's deal and two owners per brick.
     balance_32: f64,
     balance_32_replicas_2: f64,
@@ -329,6 +333,7 @@ fn balance(st: &pofvr::frame::FrameStats) -> f64 {
 fn sweep(
     job: &RenderJob,
     bounds: Option<&dyn OpacityBound>,
+    ideal: Option<&IdealPofs<'_>>,
     views: &[[f64; 2]],
     (w, h): (u32, u32),
     ui: &Ui,
@@ -337,7 +342,7 @@ fn sweep(
     let mut out = Vec::with_capacity(views.len());
     for &[az, el] in views {
         let cam = Camera::orbit(&job.volume, az, el, w, h, Projection::Orthographic);
-        let run = |cull, ranks, replicas| {
+        let run_with = |bounds, cull, ranks, replicas| {
             let opts = FrameOptions {
                 cull,
                 ranks,
@@ -346,6 +351,7 @@ fn sweep(
             };
             render_frame(job, bounds, &cam, &opts).map(|(_, st)| st)
         };
+        let run = |cull, ranks, replicas| run_with(bounds, cull, ranks, replicas);
         #[allow(clippy::cast_precision_loss)]
         let fraction = |st: &pofvr::frame::FrameStats| {
             st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64
@@ -356,6 +362,10 @@ fn sweep(
             culled_fraction_pof: fraction(&run(CullMode::Pof, 1, 1)?),
             culled_fraction_pof_set: fraction(&run(CullMode::PofSet, 1, 1)?),
             culled_fraction_exact: fraction(&run(CullMode::Exact, 1, 1)?),
+            culled_fraction_ideal: match ideal {
+                Some(i) => Some(fraction(&run_with(Some(i), CullMode::Pof, 1, 1)?)),
+                None => None,
+            },
             balance_32: balance(&run(CullMode::Pof, 32, 1)?),
             balance_32_replicas_2: balance(&run(CullMode::Pof, 32, 2)?),
         });
@@ -541,9 +551,46 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
             if t.met { "met" } else { "MISSED" }
         );
     }
+    // The tables' own levels (not sub-brick tables: one measured number per render brick).
+    let ideal = if a.ideal {
+        IdealPofs::new(
+            &job.volume,
+            &job.grid,
+            &job.sampled,
+            (job.settings.step, job.settings.ert),
+            &pofs.core_lengths(),
+        )
+    } else {
+        None
+    };
+    let ideal_case = match &ideal {
+        Some(i) => {
+            let sp = ui.spinner("culling with ideal POFs (a brick render per brick and level)");
+            let opts = FrameOptions {
+                cull: CullMode::Pof,
+                ..FrameOptions::default()
+            };
+            let st = render_frame(&job, Some(i as &dyn OpacityBound), &cam, &opts)?.1;
+            sp.finish_and_clear();
+            #[allow(clippy::cast_precision_loss)]
+            let fraction = st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64;
+            println!(
+                "ideal POFs (core minima measured at this view, core lengths {:?}): culled {} ({:.1} %)",
+                pofs.core_lengths(),
+                st.bricks.culled,
+                100.0 * fraction
+            );
+            Some(serde_json::json!({
+                "core_lengths": pofs.core_lengths(),
+                "culled": st.bricks.culled,
+                "culled_fraction": fraction,
+            }))
+        }
+        None => None,
+    };
     let sweep_rows = if a.sweep > 0 {
         let views = sweep_views(a.sweep);
-        let rows = sweep(&job, bounds, &views, (w, h), ui)?;
+        let rows = sweep(&job, bounds, ideal.as_ref(), &views, (w, h), ui)?;
         print_sweep(&rows);
         Some(rows)
     } else {
@@ -556,6 +603,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
             "views": rows,
             "points_below_exact_pof": points(|v| v.culled_fraction_pof),
             "points_below_exact_pof_set": points(|v| v.culled_fraction_pof_set),
+            "points_below_exact_ideal": a.ideal.then(|| points(|v| v.culled_fraction_ideal.unwrap_or(0.0))),
             "balance_32": spread(rows, |v| v.balance_32),
             "balance_32_replicas_2": spread(rows, |v| v.balance_32_replicas_2),
         })
@@ -565,6 +613,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         "image": [w, h],
         "view": view,
         "sweep": sweep_report,
+        "ideal": ideal_case,
         "threads": rayon::current_num_threads(),
         "speedup_pof_vs_none": speedup,
         "targets": targets,
@@ -589,17 +638,22 @@ fn print_sweep(rows: &[SweepView]) {
         "sweep over {} views (culled % of non-empty at 1 rank; balance at 32 ranks):",
         rows.len()
     );
+    let ideal = |v: &SweepView| {
+        v.culled_fraction_ideal
+            .map_or_else(|| "-".to_owned(), |f| format!("{:.1}", 100.0 * f))
+    };
     println!(
-        "{:>8} {:>8} {:>7} {:>8} {:>7} {:>11} {:>12}",
-        "azimuth", "elev", "pof %", "pof-set", "exact", "balance 32", "2 replicas"
+        "{:>8} {:>8} {:>7} {:>8} {:>7} {:>7} {:>11} {:>12}",
+        "azimuth", "elev", "pof %", "pof-set", "ideal", "exact", "balance 32", "2 replicas"
     );
     for v in rows {
         println!(
-            "{:>8.1} {:>8.1} {:>7.1} {:>8.1} {:>7.1} {:>11.3} {:>12.3}",
+            "{:>8.1} {:>8.1} {:>7.1} {:>8.1} {:>7} {:>7.1} {:>11.3} {:>12.3}",
             v.azimuth,
             v.elevation,
             100.0 * v.culled_fraction_pof,
             100.0 * v.culled_fraction_pof_set,
+            ideal(v),
             100.0 * v.culled_fraction_exact,
             v.balance_32,
             v.balance_32_replicas_2
@@ -619,6 +673,11 @@ fn print_sweep(rows: &[SweepView]) {
     line("points culled below exact (pof-set)", &|v| {
         100.0 * (v.culled_fraction_exact - v.culled_fraction_pof_set)
     });
+    if rows.iter().all(|v| v.culled_fraction_ideal.is_some()) {
+        line("points culled below exact (ideal POFs)", &|v| {
+            100.0 * (v.culled_fraction_exact - v.culled_fraction_ideal.unwrap_or(0.0))
+        });
+    }
     line("load balance at 32 ranks (1 replica)", &|v| v.balance_32);
     line("load balance at 32 ranks (2 replicas)", &|v| {
         v.balance_32_replicas_2

@@ -7,6 +7,7 @@
 //! 1 − threshold. A visible brick adds its bound over its *core* footprint only (pixels whose
 //! ray runs at least the bound's core length inside it), which is where the bound holds.
 
+pub mod ideal;
 pub mod range_bound;
 #[cfg(test)]
 mod test;

@@ -653,3 +653,74 @@ fn strips_tile_the_tile_and_strip_culling_keeps_the_threshold_rule() {
     }
     assert!(culled > 0, "strip culling culls the phantom's inside");
 }
+
+#[test]
+fn ideal_pofs_sit_between_the_tables_and_the_oracle() {
+    let j = job(64, &[3.0, 1.0]);
+    let levels = CoreLevels::new(vec![
+        pof_table(&j, &j.grid, Some(4.0)),
+        pof_table(&j, &j.grid, Some(7.0)),
+    ])
+    .unwrap()
+    .unwrap();
+    let ideal = ideal::IdealPofs::new(
+        &j.volume,
+        &j.grid,
+        &j.sampled,
+        (j.settings.step, j.settings.ert),
+        &levels.core_lengths(),
+    )
+    .unwrap();
+    assert_eq!(ideal.core_length(), 4.0);
+    assert_eq!(ideal.deeper().map(OpacityBound::core_length), Some(7.0));
+    assert!(ideal::IdealPofs::new(&j.volume, &j.grid, &j.sampled, (1.0, 0.99), &[]).is_none());
+    let mut above = 0;
+    for (az, el) in [(0.0, 0.0), (37.0, 23.0), (150.0, -30.0)] {
+        let c = cam(&j, az, el, Projection::Orthographic);
+        let d = c.frame().forward;
+        // Per brick and level: the table is a rigorous bound of the measured minimum.
+        let mut level: Option<(&dyn OpacityBound, &dyn OpacityBound)> = Some((&levels, &ideal));
+        while let Some((t, i)) = level {
+            for id in j.grid.ids() {
+                let (tv, iv) = (
+                    t.opacity(id, d, &j.tf.weights, false),
+                    i.opacity(id, d, &j.tf.weights, false),
+                );
+                assert!(
+                    tv <= iv + 1e-6,
+                    "view {az},{el} brick {id:?} core {}: table {tv} above measured {iv}",
+                    t.core_length()
+                );
+                above += usize::from(iv > tv + 1e-3);
+            }
+            level = t.deeper().zip(i.deeper());
+        }
+        // So culling with the measurements culls at least as much; the oracle (the real
+        // composited opacity over every pixel, rims included) culls more still here.
+        let run = |mode, b: &dyn OpacityBound| {
+            let opts = FrameOptions {
+                cull: mode,
+                ..FrameOptions::default()
+            };
+            render_frame(&j, Some(b), &c, &opts)
+                .unwrap()
+                .1
+                .bricks
+                .culled
+        };
+        let (pof, ideal_culled, exact) = (
+            run(CullMode::Pof, &levels),
+            run(CullMode::Pof, &ideal),
+            run(CullMode::Exact, &levels),
+        );
+        eprintln!("view {az},{el}: culled pof {pof}, ideal {ideal_culled}, exact {exact}");
+        assert!(
+            pof <= ideal_culled && ideal_culled <= exact,
+            "view {az},{el}: {pof} {ideal_culled} {exact}"
+        );
+    }
+    assert!(
+        above > 0,
+        "the measured minima are above the bound somewhere"
+    );
+}
