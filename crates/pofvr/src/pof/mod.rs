@@ -338,6 +338,29 @@ pub struct PofTable {
     data_offset: usize,
     record_len: usize,
     source: String,
+    /// Tells this table from every other in per-thread lookup caches.
+    uid: u64,
+    /// Per record, each function's largest value over the cells that meet at a border
+    /// direction ([`PofTable::border_values`]), by the cells' list: made on first use.
+    borders: std::sync::Mutex<Vec<BorderValues>>,
+}
+
+/// The cells meeting at a border direction, and per record each function's largest value
+/// over them.
+type BorderValues = (Vec<(usize, usize)>, std::sync::Arc<[f32]>);
+
+/// A fresh [`PofTable::uid`].
+pub(crate) fn next_uid() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
+/// Where the lookups of one view direction read: one cell, or (a direction on the border
+/// of several cells) the per-function maxima over them.
+#[derive(Clone)]
+enum Lookup {
+    Cell((usize, usize)),
+    Border(std::sync::Arc<[f32]>),
 }
 
 impl std::fmt::Debug for PofTable {
@@ -632,14 +655,20 @@ impl PofTable {
     /// Decoded per-basis opacity of `brick` in cell `(i, j)` for basis `basis`
     /// (0 for empty bricks). `set_of`: `Some(s)` reads basis `basis` at basis `s`'s `q_min`.
     fn value(&self, rec: &[u8], basis: usize, set_of: Option<usize>, cell: (usize, usize)) -> f32 {
+        self.function_value(rec, self.function_index(basis, set_of), cell)
+    }
+
+    /// Which encoded function holds basis `basis` (at basis `s`'s `q_min` for
+    /// `set_of = Some(s)`).
+    #[inline]
+    fn function_index(&self, basis: usize, set_of: Option<usize>) -> usize {
         let p = self.meta.basis_count as usize;
-        let idx = match set_of {
+        match set_of {
             None => basis,
             Some(s) if s == basis => basis,
             // Sets of basis s: the p−1 other bases in order, after the p conservative POFs.
             Some(s) => p + s * (p - 1) + if basis < s { basis } else { basis - 1 },
-        };
-        self.function_value(rec, idx, cell)
+        }
     }
 
     /// Decoded value of encoded function `idx` of record `rec` in view cell `cell`.
@@ -676,6 +705,13 @@ impl PofTable {
         weights: &[f32],
         mode: PofMode,
     ) -> f32 {
+        self.combine(|f| self.function_value(rec, f, cell), weights, mode)
+    }
+
+    /// The run-time opacity from the values of one view cell's functions (`value(f)`: the
+    /// `f`-th encoded function, in record order).
+    #[inline]
+    fn combine(&self, value: impl Fn(usize) -> f32, weights: &[f32], mode: PofMode) -> f32 {
         let p = self.meta.basis_count as usize;
         let combine = |set_of: Option<usize>| -> f32 {
             // Eq. 3: 1 − Π (1 − αᵢ)^kᵢ. A weight of 1 (the common case) needs no power:
@@ -683,11 +719,11 @@ impl PofTable {
             let mut t = 1.0f64;
             for (i, k) in weights.iter().enumerate().take(p) {
                 if *k > 0.0 {
-                    let mut a = self.value(rec, i, None, cell);
-                    if set_of.is_some() {
+                    let mut a = value(i);
+                    if let Some(s) = set_of {
                         // Each set entry is at least the basis's own POF; separately fitted
                         // cubics could lose that, so it is restored here.
-                        a = a.max(self.value(rec, i, set_of, cell));
+                        a = a.max(value(self.function_index(i, Some(s))));
                     }
                     if a <= 0.0 {
                         continue;
@@ -710,14 +746,18 @@ impl PofTable {
                 .fold(f32::INFINITY, f32::min),
             _ => combine(None),
         };
-        a.max(self.joint_opacity(rec, cell, weights))
-            .clamp(0.0, self.meta.ert)
+        let joint = if self.meta.joint.is_some() {
+            self.joint_opacity(value(self.meta.functions() - 1), weights)
+        } else {
+            0.0
+        };
+        a.max(joint).clamp(0.0, self.meta.ert)
     }
 
     /// The joint POF scaled to `weights`: with anchor `a`, every weight vector is at least
     /// `c·a` for `c = minᵢ wᵢ/aᵢ` over the bases with `aᵢ > 0`, and a ray's optical depth
     /// grows with every weight, so `1 − (1 − α_joint)^c` stays a lower bound.
-    fn joint_opacity(&self, rec: &[u8], cell: (usize, usize), weights: &[f32]) -> f32 {
+    fn joint_opacity(&self, stored: f32, weights: &[f32]) -> f32 {
         let Some(anchor) = &self.meta.joint else {
             return 0.0;
         };
@@ -731,9 +771,7 @@ impl PofTable {
         if !(c.is_finite() && c > 0.0) {
             return 0.0;
         }
-        let aj = self
-            .function_value(rec, self.meta.functions() - 1, cell)
-            .clamp(0.0, ALPHA_MAX);
+        let aj = stored.clamp(0.0, ALPHA_MAX);
         if c == 1.0 || aj <= 0.0 {
             // The anchor's own weights (the common case): the joint POF as stored.
             return aj;
@@ -752,39 +790,105 @@ impl PofTable {
         let Some(s) = self.slot(brick) else {
             return 0.0;
         };
-        let cell = self.cell_of_cached(view_dir);
-        self.cell_opacity(self.record(s), cell, weights, mode)
+        self.with_lookup(view_dir, |at| match at {
+            Lookup::Cell(cell) => {
+                let (rec, cell) = (self.record(s), *cell);
+                self.combine(|f| self.function_value(rec, f, cell), weights, mode)
+            }
+            Lookup::Border(values) => {
+                let funcs = self.meta.functions();
+                let v = &values[s * funcs..(s + 1) * funcs];
+                self.combine(|f| v[f], weights, mode)
+            }
+        })
     }
 
-    /// [`PofTable::cell_of`], remembered per thread for the last directions: a frame asks
-    /// for one direction thousands of times (orthographic views), and the angles cost an
-    /// `acos` and an `atan2`. A few entries, not one: tables of different view grids (core
-    /// levels, sub-bricks) are looked up in turn, and one entry would miss every time.
-    fn cell_of_cached(&self, dir: DVec3) -> (usize, usize) {
-        type Key = ([u64; 3], [u32; 2]);
-        type Entry = Option<(Key, (usize, usize))>;
+    /// Runs `f` with where the lookups along `dir` read, remembered per thread for the
+    /// last directions: a frame asks for one direction thousands of times (orthographic
+    /// views), and the angles cost an `acos` and an `atan2`. A few entries, not one: tables
+    /// of different view grids (core levels, sub-brick tables) are looked up in turn, and
+    /// one entry would miss every time.
+    fn with_lookup<R>(&self, dir: DVec3, f: impl FnOnce(&Lookup) -> R) -> R {
+        type Key = ([u64; 3], u64);
+        type Entry = Option<(Key, Lookup)>;
         const WAYS: usize = 4;
         thread_local! {
             // The entries and the next one to replace (borrowed in place, not copied out).
             static LAST: std::cell::RefCell<([Entry; WAYS], usize)> =
-                const { std::cell::RefCell::new(([None; WAYS], 0)) };
+                const { std::cell::RefCell::new(([None, None, None, None], 0)) };
         }
-        let key = (dir.to_array().map(f64::to_bits), self.meta.views);
+        let key = (dir.to_array().map(f64::to_bits), self.uid);
         LAST.with_borrow_mut(|(ways, next)| {
-            if let Some((_, cell)) = ways.iter().flatten().find(|(k, _)| *k == key) {
-                return *cell;
+            if let Some((_, at)) = ways.iter().flatten().find(|(k, _)| *k == key) {
+                return f(at);
             }
-            let cell = self.cell_of(dir);
-            ways[*next] = Some((key, cell));
+            let cells = border_cells(self.meta.views, dir);
+            let at = if cells.len() > 1 && self.meta.encoding != Encoding::Cubic {
+                Lookup::Border(self.border_values(cells))
+            } else {
+                Lookup::Cell(self.cell_of(dir))
+            };
+            let r = f(&at);
+            ways[*next] = Some((key, at));
             *next = (*next + 1) % WAYS;
-            cell
+            r
         })
+    }
+
+    #[cfg(test)]
+    /// [`PofTable::cell_of`], through the per-thread cache of [`PofTable::with_lookup`].
+    fn cell_of_cached(&self, dir: DVec3) -> (usize, usize) {
+        self.with_lookup(dir, |at| match at {
+            Lookup::Cell(c) => *c,
+            Lookup::Border(_) => self.cell_of(dir),
+        })
+    }
+
+    /// Per record, each function's largest value over `cells`, the cells whose borders
+    /// meet at one direction (the poles, where a whole row of cells meets, and the axes and
+    /// grid lines between two or four).
+    ///
+    /// Why: every cell's value bounds every direction of the cell *and its border*, so a
+    /// direction on the border is bounded by each of them, per basis and for the joint POF:
+    /// by the largest. Axis-aligned views, the commonest of all, look along such directions;
+    /// with one cell chosen by rounding, a brick read as transparent there when a
+    /// neighbouring cell knew better.
+    fn border_values(&self, cells: Vec<(usize, usize)>) -> std::sync::Arc<[f32]> {
+        let mut made = self
+            .borders
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((_, v)) = made.iter().find(|(c, _)| *c == cells) {
+            return v.clone();
+        }
+        let funcs = self.meta.functions();
+        let slots =
+            self.bytes.as_slice().len().saturating_sub(self.data_offset) / self.record_len.max(1);
+        let mut values = vec![0f32; slots * funcs];
+        for (s, out) in values.chunks_exact_mut(funcs).enumerate() {
+            let rec = self.record(s);
+            for (f, o) in out.iter_mut().enumerate() {
+                *o = cells
+                    .iter()
+                    .map(|c| self.function_value(rec, f, *c))
+                    .fold(0.0, f32::max);
+            }
+        }
+        let values: std::sync::Arc<[f32]> = values.into();
+        made.push((cells, values.clone()));
+        values
     }
 
     /// Starts loading the cache lines [`PofTable::opacity`] reads for each of `bricks`
     /// along `view_dir` (each function's value in the direction's cell), without waiting.
     pub fn prefetch(&self, bricks: &[BrickId], view_dir: DVec3) {
-        let cell = self.cell_of_cached(view_dir);
+        // Border directions read a small array of their own, not the records.
+        let Some(cell) = self.with_lookup(view_dir, |at| match at {
+            Lookup::Cell(c) => Some(*c),
+            Lookup::Border(_) => None,
+        }) else {
+            return;
+        };
         let funcs = self.meta.functions();
         let range = |f: usize| {
             encoding::value_range(
@@ -885,6 +989,47 @@ fn cell_of(views: [u32; 2], dir: DVec3) -> (usize, usize) {
     let i = ((theta / std::f64::consts::PI * n as f64) as usize).min(n - 1);
     let j = ((phi / std::f64::consts::TAU * m as f64) as usize).min(m - 1);
     (i, j)
+}
+
+/// Every view cell whose closure holds `dir`: one for most directions; two or four on
+/// the lines between cells; a whole row at a pole. A direction within a hair (1e-9 of a
+/// cell) of a line counts as on it: far below what the cells' margin covers.
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_precision_loss
+)]
+fn border_cells(views: [u32; 2], dir: DVec3) -> Vec<(usize, usize)> {
+    const HAIR: f64 = 1e-9;
+    let (n, m) = (views[0] as usize, views[1] as usize);
+    let (theta, phi) = angles(dir);
+    let u = theta / std::f64::consts::PI * n as f64;
+    if u <= HAIR || u >= n as f64 - HAIR {
+        let i = if u <= HAIR { 0 } else { n - 1 };
+        return (0..m).map(|j| (i, j)).collect();
+    }
+    let near = |x: f64, count: usize, wrap: bool| -> Vec<usize> {
+        let k = x.round();
+        let i = (x as usize).min(count - 1);
+        if (x - k).abs() > HAIR {
+            return vec![i];
+        }
+        let k = k as usize;
+        if wrap {
+            vec![(k + count - 1) % count, k % count]
+        } else {
+            vec![k - 1, k.min(count - 1)]
+        }
+    };
+    let rows = near(u, n, false);
+    let cols = near(phi / std::f64::consts::TAU * m as f64, m, true);
+    let mut out: Vec<(usize, usize)> = rows
+        .iter()
+        .flat_map(|i| cols.iter().map(move |j| (*i, *j)))
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
 }
 
 /// Every view cell that directions within `half_angle` of `axis` can fall in.

@@ -939,3 +939,124 @@ fn cached_view_cells_stay_right_when_tables_of_other_grids_take_turns() {
         }
     }
 }
+
+/// The six axis directions and a few more on the lines between view cells of a 12×12 grid
+/// (θ on a row border, φ on a column border, or both).
+fn border_dirs() -> Vec<DVec3> {
+    use std::f64::consts::PI;
+    let mut d = vec![
+        DVec3::X,
+        DVec3::NEG_X,
+        DVec3::Y,
+        DVec3::NEG_Y,
+        DVec3::Z,
+        DVec3::NEG_Z,
+    ];
+    for (t, p) in [(3.0, 1.3), (4.4, 2.0), (5.0, 7.0), (6.0, 5.5)] {
+        d.push(direction(t / 12.0 * PI, p / 12.0 * 2.0 * PI));
+    }
+    d
+}
+
+#[test]
+fn border_cells_are_the_cells_whose_closure_holds_the_direction() {
+    let views = [12, 12];
+    // A pole: the whole first or last row.
+    assert_eq!(
+        border_cells(views, DVec3::Z),
+        (0..12).map(|j| (0, j)).collect::<Vec<_>>()
+    );
+    assert_eq!(
+        border_cells(views, DVec3::NEG_Z),
+        (0..12).map(|j| (11, j)).collect::<Vec<_>>()
+    );
+    // +x: θ = 90° (rows 5 and 6 meet), φ = 0 (columns 11 and 0 meet).
+    assert_eq!(
+        border_cells(views, DVec3::X),
+        vec![(5, 0), (5, 11), (6, 0), (6, 11)]
+    );
+    // A hair off a line still counts as on it; a little more does not.
+    let near = direction(std::f64::consts::FRAC_PI_2 + 1e-12, 1.0);
+    assert_eq!(border_cells(views, near).len(), 2);
+    let off = direction(std::f64::consts::FRAC_PI_2 + 1e-6, 1.0);
+    assert_eq!(border_cells(views, off), vec![cell_of(views, off)]);
+    // Anywhere else: the one cell of `cell_of`.
+    let mut rng = seeded_rng();
+    for _ in 0..200 {
+        let d = random_dir(&mut rng);
+        assert_eq!(border_cells(views, d), vec![cell_of(views, d)], "{d}");
+    }
+    for d in border_dirs() {
+        let cells = border_cells(views, d);
+        assert!(cells.len() >= 2, "{d}: {cells:?}");
+        assert!(cells.contains(&cell_of(views, d)), "{d}: {cells:?}");
+    }
+}
+
+#[test]
+fn lookups_on_cell_borders_take_the_best_cell_and_never_exceed_brute_force() {
+    let s = phantom(64);
+    let t = table(
+        &s,
+        &PofSettings {
+            sets: true,
+            ..small_views()
+        },
+    );
+    let mut rng = seeded_rng();
+    let stored: Vec<BrickId> = s.grid.ids().filter(|id| t.slot(*id).is_some()).collect();
+    let (mut lifted, mut compared) = (0, 0);
+    for d in border_dirs() {
+        let cells = border_cells(t.meta().views, d);
+        for &id in &stored {
+            for w in [
+                vec![1.0, 0.0],
+                vec![0.0, 1.0],
+                vec![1.0, 1.0],
+                vec![3.0, 0.5],
+            ] {
+                let a = t.opacity(id, d, &w, PofMode::Conservative);
+                // Every cell of the border bounds the direction, so the lookup is at least
+                // what each alone gives, and more where the cells differ.
+                let rec = t.record(t.slot(id).unwrap());
+                let each = cells
+                    .iter()
+                    .map(|c| t.cell_opacity(rec, *c, &w, PofMode::Conservative))
+                    .fold(0.0, f32::max);
+                assert!(
+                    a >= each - 1e-6,
+                    "{d} brick {id:?}: {a} below a cell's {each}"
+                );
+                let one =
+                    t.cell_opacity(rec, cell_of(t.meta().views, d), &w, PofMode::Conservative);
+                lifted += usize::from(a > one + 1e-3);
+                // Sets: never below the conservative lookup.
+                assert!(t.opacity(id, d, &w, PofMode::Sets) >= a - 1e-6);
+            }
+            // And still a bound: the brute-force minimum along the very direction.
+            let w = [1.0, 1.0];
+            let r = core_min(
+                &s.volume,
+                &s.grid,
+                &s.sampled,
+                id,
+                &w,
+                t.step(),
+                t.ert(),
+                t.core_length(),
+                &probe(&mut rng, d),
+            );
+            if let Some(m) = r.core_min {
+                let a = t.opacity(id, d, &w, PofMode::Conservative);
+                assert!(
+                    a <= m + 1e-6,
+                    "{d} brick {id:?}: lookup {a} > brute force {m}"
+                );
+                compared += 1;
+            }
+        }
+    }
+    eprintln!("{compared} border views compared; {lifted} lookups lifted above the rounded cell's");
+    assert!(compared > 50, "{compared}");
+    assert!(lifted > 0, "a border lookup gains somewhere");
+}
