@@ -350,31 +350,32 @@ fn an_error_names_its_cause_once() {
     assert_eq!(e.matches(cause).count(), 1, "{e}");
 }
 
+/// `bench cull` on a small phantom, one repetition, with `extra` arguments: its output and
+/// its report.
+fn bench_cull(d: &Path, extra: &[&str]) -> (Output, serde_json::Value) {
+    let mut args = vec![
+        "bench",
+        "cull",
+        "phantom:head:48",
+        "--size",
+        "64x64",
+        "--reps",
+        "1",
+        "--quiet",
+        "--out",
+        "b.json",
+    ];
+    args.extend_from_slice(extra);
+    let o = pofvr(&args, d);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = serde_json::from_slice(&std::fs::read(d.join("b.json")).unwrap()).unwrap();
+    (o, r)
+}
+
 #[test]
 fn bench_cull_sweep_and_ideal_report_each_view_and_their_mean_and_worst() {
     let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let o = pofvr(
-        &[
-            "bench",
-            "cull",
-            "phantom:head:48",
-            "--size",
-            "64x64",
-            "--reps",
-            "1",
-            "--sweep",
-            "3",
-            "--ideal",
-            "--quiet",
-            "--out",
-            "b.json",
-        ],
-        d,
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("b.json")).unwrap()).unwrap();
+    let (o, r) = bench_cull(dir.path(), &["--sweep", "3", "--ideal"]);
     let views = r["sweep"]["views"].as_array().unwrap();
     assert_eq!(views.len(), 3, "{r}");
     let f = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} in {v}"));
@@ -416,25 +417,7 @@ fn bench_cull_sweep_and_ideal_report_each_view_and_their_mean_and_worst() {
 #[test]
 fn bench_cull_reports_every_case_and_each_target_in_one_run() {
     let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let o = pofvr(
-        &[
-            "bench",
-            "cull",
-            "phantom:head:48",
-            "--size",
-            "64x64",
-            "--reps",
-            "1",
-            "--quiet",
-            "--out",
-            "b.json",
-        ],
-        d,
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("b.json")).unwrap()).unwrap();
+    let (o, r) = bench_cull(dir.path(), &[]);
     let cases = r["cases"].as_array().unwrap();
     for (mode, ranks, replicas) in [
         ("none", 1, 1),

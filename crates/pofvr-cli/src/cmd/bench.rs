@@ -189,7 +189,7 @@ fn cull_case(
         cull_share_of_frame: max_cull / st.frame_ms,
         culled: st.bricks.culled,
         non_empty: st.bricks.non_empty,
-        culled_fraction: st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64,
+        culled_fraction: culled_fraction(st),
         samples: st.samples,
         load_balance_max_over_mean_samples: balance(st),
     }
@@ -316,6 +316,14 @@ fn sweep_views(n: usize) -> Vec<[f64; 2]> {
         .collect()
 }
 
+/// Share of the frame's non-empty bricks that were culled.
+fn culled_fraction(st: &pofvr::frame::FrameStats) -> f64 {
+    #[allow(clippy::cast_precision_loss)]
+    let f = st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64;
+    f
+}
+
+/// Max / mean samples rendered over the frame's ranks.
 fn balance(st: &pofvr::frame::FrameStats) -> f64 {
     #[allow(clippy::cast_precision_loss)]
     let mean =
@@ -352,18 +360,14 @@ fn sweep(
             render_frame(job, bounds, &cam, &opts).map(|(_, st)| st)
         };
         let run = |cull, ranks, replicas| run_with(bounds, cull, ranks, replicas);
-        #[allow(clippy::cast_precision_loss)]
-        let fraction = |st: &pofvr::frame::FrameStats| {
-            st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64
-        };
         out.push(SweepView {
             azimuth: az,
             elevation: el,
-            culled_fraction_pof: fraction(&run(CullMode::Pof, 1, 1)?),
-            culled_fraction_pof_set: fraction(&run(CullMode::PofSet, 1, 1)?),
-            culled_fraction_exact: fraction(&run(CullMode::Exact, 1, 1)?),
+            culled_fraction_pof: culled_fraction(&run(CullMode::Pof, 1, 1)?),
+            culled_fraction_pof_set: culled_fraction(&run(CullMode::PofSet, 1, 1)?),
+            culled_fraction_exact: culled_fraction(&run(CullMode::Exact, 1, 1)?),
             culled_fraction_ideal: match ideal {
-                Some(i) => Some(fraction(&run_with(Some(i), CullMode::Pof, 1, 1)?)),
+                Some(i) => Some(culled_fraction(&run_with(Some(i), CullMode::Pof, 1, 1)?)),
                 None => None,
             },
             balance_32: balance(&run(CullMode::Pof, 32, 1)?),
@@ -373,6 +377,35 @@ fn sweep(
     }
     pb.finish_and_clear();
     Ok(out)
+}
+
+/// The sweep's measures over all its views (`"sweep"` in the report, beside `"views"`).
+#[derive(Serialize)]
+struct SweepSummary {
+    points_below_exact_pof: Option<Spread>,
+    points_below_exact_pof_set: Option<Spread>,
+    /// With `--ideal` only.
+    points_below_exact_ideal: Option<Spread>,
+    balance_32: Option<Spread>,
+    balance_32_replicas_2: Option<Spread>,
+}
+
+impl SweepSummary {
+    fn of(rows: &[SweepView]) -> Self {
+        let points = |f: &dyn Fn(&SweepView) -> f64| {
+            spread(rows, |v| 100.0 * (v.culled_fraction_exact - f(v)))
+        };
+        let ideal = rows.iter().all(|v| v.culled_fraction_ideal.is_some());
+        SweepSummary {
+            points_below_exact_pof: points(&|v| v.culled_fraction_pof),
+            points_below_exact_pof_set: points(&|v| v.culled_fraction_pof_set),
+            points_below_exact_ideal: ideal
+                .then(|| points(&|v| v.culled_fraction_ideal.unwrap_or(0.0)))
+                .flatten(),
+            balance_32: spread(rows, |v| v.balance_32),
+            balance_32_replicas_2: spread(rows, |v| v.balance_32_replicas_2),
+        }
+    }
 }
 
 /// Mean and worst (largest) of `f` over the sweep.
@@ -572,8 +605,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
             };
             let st = render_frame(&job, Some(i as &dyn OpacityBound), &cam, &opts)?.1;
             sp.finish_and_clear();
-            #[allow(clippy::cast_precision_loss)]
-            let fraction = st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64;
+            let fraction = culled_fraction(&st);
             println!(
                 "ideal POFs (core minima measured at this view, core lengths {:?}): culled {} ({:.1} %)",
                 pofs.core_lengths(),
@@ -588,26 +620,23 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         }
         None => None,
     };
-    let sweep_rows = if a.sweep > 0 {
-        let views = sweep_views(a.sweep);
-        let rows = sweep(&job, bounds, ideal.as_ref(), &views, (w, h), ui)?;
-        print_sweep(&rows);
-        Some(rows)
+    let sweep_report = if a.sweep > 0 {
+        let rows = sweep(
+            &job,
+            bounds,
+            ideal.as_ref(),
+            &sweep_views(a.sweep),
+            (w, h),
+            ui,
+        )?;
+        let summary = SweepSummary::of(&rows);
+        print_sweep(&rows, &summary);
+        let mut report = serde_json::to_value(&summary)?;
+        report["views"] = serde_json::to_value(&rows)?;
+        Some(report)
     } else {
         None
     };
-    let sweep_report = sweep_rows.as_ref().map(|rows| {
-        let points =
-            |f: fn(&SweepView) -> f64| spread(rows, |v| 100.0 * (v.culled_fraction_exact - f(v)));
-        serde_json::json!({
-            "views": rows,
-            "points_below_exact_pof": points(|v| v.culled_fraction_pof),
-            "points_below_exact_pof_set": points(|v| v.culled_fraction_pof_set),
-            "points_below_exact_ideal": a.ideal.then(|| points(|v| v.culled_fraction_ideal.unwrap_or(0.0))),
-            "balance_32": spread(rows, |v| v.balance_32),
-            "balance_32_replicas_2": spread(rows, |v| v.balance_32_replicas_2),
-        })
-    });
     let report = serde_json::json!({
         "volume": spec,
         "image": [w, h],
@@ -633,7 +662,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
 }
 
 /// The sweep's table and its mean and worst lines.
-fn print_sweep(rows: &[SweepView]) {
+fn print_sweep(rows: &[SweepView], summary: &SweepSummary) {
     println!(
         "sweep over {} views (culled % of non-empty at 1 rank; balance at 32 ranks):",
         rows.len()
@@ -659,29 +688,31 @@ fn print_sweep(rows: &[SweepView]) {
             v.balance_32_replicas_2
         );
     }
-    let line = |what: &str, f: &dyn Fn(&SweepView) -> f64| {
-        if let Some(s) = spread(rows, f) {
+    let line = |what: &str, s: &Option<Spread>| {
+        if let Some(s) = s {
             println!(
                 "sweep {what:<40} mean {:>7.3}  worst {:>7.3} at {:.1},{:.1}",
                 s.mean, s.worst, s.worst_view[0], s.worst_view[1]
             );
         }
     };
-    line("points culled below exact (pof)", &|v| {
-        100.0 * (v.culled_fraction_exact - v.culled_fraction_pof)
-    });
-    line("points culled below exact (pof-set)", &|v| {
-        100.0 * (v.culled_fraction_exact - v.culled_fraction_pof_set)
-    });
-    if rows.iter().all(|v| v.culled_fraction_ideal.is_some()) {
-        line("points culled below exact (ideal POFs)", &|v| {
-            100.0 * (v.culled_fraction_exact - v.culled_fraction_ideal.unwrap_or(0.0))
-        });
-    }
-    line("load balance at 32 ranks (1 replica)", &|v| v.balance_32);
-    line("load balance at 32 ranks (2 replicas)", &|v| {
-        v.balance_32_replicas_2
-    });
+    line(
+        "points culled below exact (pof)",
+        &summary.points_below_exact_pof,
+    );
+    line(
+        "points culled below exact (pof-set)",
+        &summary.points_below_exact_pof_set,
+    );
+    line(
+        "points culled below exact (ideal POFs)",
+        &summary.points_below_exact_ideal,
+    );
+    line("load balance at 32 ranks (1 replica)", &summary.balance_32);
+    line(
+        "load balance at 32 ranks (2 replicas)",
+        &summary.balance_32_replicas_2,
+    );
 }
 
 #[cfg(test)]

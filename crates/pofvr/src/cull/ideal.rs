@@ -80,14 +80,13 @@ impl OpacityBound for IdealPofs<'_> {
             dir.to_array().map(f64::to_bits),
             weights.iter().map(|w| w.to_bits()).collect(),
         );
-        let lock = |m: &Mutex<HashMap<Key, f32>>| {
-            m.lock()
+        let measured = || {
+            self.measured
+                .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .get(&key)
-                .copied()
         };
-        if let Some(a) = lock(&self.measured) {
-            return a;
+        if let Some(a) = measured().get(&key) {
+            return *a;
         }
         let probe = ReferenceProbe {
             dir,
@@ -107,10 +106,7 @@ impl OpacityBound for IdealPofs<'_> {
             &probe,
         );
         let a = view.core_min.unwrap_or(0.0);
-        self.measured
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .insert(key, a);
+        measured().insert(key, a);
         a
     }
 

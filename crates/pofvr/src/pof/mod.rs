@@ -357,7 +357,6 @@ pub(crate) fn next_uid() -> u64 {
 
 /// Where the lookups of one view direction read: one cell, or (a direction on the border
 /// of several cells) the per-function maxima over them.
-#[derive(Clone)]
 enum Lookup {
     Cell((usize, usize)),
     Border(std::sync::Arc<[f32]>),
@@ -791,10 +790,7 @@ impl PofTable {
             return 0.0;
         };
         self.with_lookup(view_dir, |at| match at {
-            Lookup::Cell(cell) => {
-                let (rec, cell) = (self.record(s), *cell);
-                self.combine(|f| self.function_value(rec, f, cell), weights, mode)
-            }
+            Lookup::Cell(cell) => self.cell_opacity(self.record(s), *cell, weights, mode),
             Lookup::Border(values) => {
                 let funcs = self.meta.functions();
                 let v = &values[s * funcs..(s + 1) * funcs];
@@ -823,10 +819,11 @@ impl PofTable {
                 return f(at);
             }
             let cells = border_cells(self.meta.views, dir);
-            let at = if cells.len() > 1 && self.meta.encoding != Encoding::Cubic {
-                Lookup::Border(self.border_values(cells))
-            } else {
-                Lookup::Cell(self.cell_of(dir))
+            let at = match cells.as_slice() {
+                [one] => Lookup::Cell(*one),
+                // Cubic POFs are smooth across cells: nothing to gain on a border.
+                _ if self.meta.encoding == Encoding::Cubic => Lookup::Cell(self.cell_of(dir)),
+                _ => Lookup::Border(self.border_values(cells)),
             };
             let r = f(&at);
             ways[*next] = Some((key, at));

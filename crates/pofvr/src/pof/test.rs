@@ -168,6 +168,28 @@ fn dense_uniform_brick_matches_the_analytic_shortest_core_chord() {
     }
 }
 
+/// The brute-force core minimum of brick `id` with weights `w`, at the table's step,
+/// early-termination threshold and core length.
+fn brute_force(
+    s: &Scene,
+    t: &PofTable,
+    id: BrickId,
+    w: &[f32],
+    pr: &ReferenceProbe,
+) -> super::reference::ReferenceView {
+    core_min(
+        &s.volume,
+        &s.grid,
+        &s.sampled,
+        id,
+        w,
+        t.step(),
+        t.ert(),
+        t.core_length(),
+        pr,
+    )
+}
+
 fn check_conservative(
     s: &Scene,
     t: &PofTable,
@@ -183,17 +205,7 @@ fn check_conservative(
         let dir = random_dir(rng);
         let w = weights(rng);
         let pr = probe(rng, dir);
-        let r = core_min(
-            &s.volume,
-            &s.grid,
-            &s.sampled,
-            id,
-            &w,
-            t.step(),
-            t.ert(),
-            t.core_length(),
-            &pr,
-        );
+        let r = brute_force(s, t, id, &w, &pr);
         let Some(m) = r.core_min else { continue };
         let a = t.opacity(id, dir, &w, PofMode::Conservative);
         assert!(
@@ -1035,17 +1047,7 @@ fn lookups_on_cell_borders_take_the_best_cell_and_never_exceed_brute_force() {
             }
             // And still a bound: the brute-force minimum along the very direction.
             let w = [1.0, 1.0];
-            let r = core_min(
-                &s.volume,
-                &s.grid,
-                &s.sampled,
-                id,
-                &w,
-                t.step(),
-                t.ert(),
-                t.core_length(),
-                &probe(&mut rng, d),
-            );
+            let r = brute_force(&s, &t, id, &w, &probe(&mut rng, d));
             if let Some(m) = r.core_min {
                 let a = t.opacity(id, d, &w, PofMode::Conservative);
                 assert!(
