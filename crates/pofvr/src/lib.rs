@@ -28,6 +28,7 @@
 #![warn(missing_docs)]
 
 pub mod brick;
+pub mod check;
 pub mod comm;
 pub mod composite;
 pub mod cull;

@@ -1029,7 +1029,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         for (k, m) in audited.iter().enumerate() {
             let (img, st) =
                 render_frame(&job, m.bound, &cam, &opts(m.mode, thr, 2, Curve::Hilbert))?;
-            let c = check_rule(&unculled, &img, thr);
+            let c = pofvr::check::check_threshold_rule(&unculled, &img, thr);
             audit.push(vec![
                 v.into(),
                 az.into(),
@@ -1043,8 +1043,8 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
                 m.name.into(),
                 (if m.conservative { "yes" } else { "no" }).into(),
                 st.bricks.culled.into(),
-                c.below.into(),
-                c.over.into(),
+                c.below_changed.into(),
+                c.over_bound.into(),
                 c.violations.into(),
                 f64::from(c.max_diff).into(),
             ]);
@@ -1643,43 +1643,6 @@ fn build_pofs(
     Ok((table, row))
 }
 
-/// What the threshold rule found in one culled frame.
-struct RuleCheck {
-    below: u64,
-    over: u64,
-    violations: u64,
-    max_diff: f32,
-}
-
-/// Compares a culled frame with the unculled one: pixels whose unculled opacity is below
-/// `threshold` must be equal within 1e-6, and none may differ by more than `1 − threshold`
-/// (with 1e-6 for float rounding).
-fn check_rule(unculled: &Image, culled: &Image, threshold: f32) -> RuleCheck {
-    let mut c = RuleCheck {
-        below: 0,
-        over: 0,
-        violations: 0,
-        max_diff: 0.0,
-    };
-    if unculled.width() != culled.width() || unculled.height() != culled.height() {
-        let n = u64::from(unculled.width()) * u64::from(unculled.height());
-        c.violations = n;
-        c.max_diff = f32::INFINITY;
-        return c;
-    }
-    for (r, p) in unculled.pixels().iter().zip(culled.pixels()) {
-        let d = (0..4).map(|k| (r[k] - p[k]).abs()).fold(0.0, f32::max);
-        let d = if d.is_nan() { f32::INFINITY } else { d };
-        let below = r[3] < threshold && d > 1e-6;
-        let over = d > 1.0 - threshold + 1e-6;
-        c.below += u64::from(below);
-        c.over += u64::from(over);
-        c.violations += u64::from(below || over);
-        c.max_diff = c.max_diff.max(d);
-    }
-    c
-}
-
 /// Images side by side with `gap` transparent columns between them.
 fn side_by_side(images: &[Image], gap: u32) -> Image {
     let h = images.iter().map(Image::height).max().unwrap_or(1).max(1);
@@ -1703,24 +1666,6 @@ fn side_by_side(images: &[Image], gap: u32) -> Image {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rule_counts_changed_transparent_pixels_and_large_differences() {
-        let mut a = Image::new(3, 1);
-        a.pixels_mut()[0] = [0.1, 0.1, 0.1, 0.5];
-        a.pixels_mut()[1] = [0.9, 0.9, 0.9, 0.97];
-        a.pixels_mut()[2] = [0.9, 0.9, 0.9, 0.97];
-        let same = check_rule(&a, &a.clone(), 0.95);
-        assert_eq!(same.violations, 0);
-        let mut b = a.clone();
-        b.pixels_mut()[0][3] += 1e-5; // below the threshold: must be identical
-        b.pixels_mut()[1][0] -= 0.04; // opaque: may differ by up to 0.05
-        b.pixels_mut()[2][1] -= 0.2; // opaque, but too far
-        let c = check_rule(&a, &b, 0.95);
-        assert_eq!((c.below, c.over, c.violations), (1, 1, 2));
-        assert!((c.max_diff - 0.2).abs() < 1e-6);
-        assert_eq!(check_rule(&a, &Image::new(2, 1), 0.95).violations, 3);
-    }
 
     #[test]
     fn rank_counts_double_up_to_the_maximum() {

@@ -4,25 +4,10 @@ use crate::frame::{render_frame, render_reference, FrameOptions, RenderJob};
 use crate::render::{families, Image, RenderSettings, TransferFunction};
 use crate::volume::phantom::Phantom;
 
-/// The culling rule: pixels whose reference opacity is below the threshold are identical
-/// (1e-6) and no pixel differs by more than 1 − threshold.
+/// The threshold rule ([`crate::check::rule`]), asserted.
 pub(crate) fn assert_conservative(reference: &Image, culled: &Image, threshold: f32, what: &str) {
-    let mut worst = 0f32;
-    for (i, (r, c)) in reference.pixels().iter().zip(culled.pixels()).enumerate() {
-        let d = (0..4).map(|k| (r[k] - c[k]).abs()).fold(0.0, f32::max);
-        if r[3] < threshold {
-            assert!(
-                d <= 1e-6,
-                "{what}: pixel {i} (ref alpha {}) differs by {d}: {r:?} vs {c:?}",
-                r[3]
-            );
-        }
-        worst = worst.max(d);
-    }
-    assert!(
-        worst <= 1.0 - threshold + 1e-6,
-        "{what}: a pixel differs by {worst}"
-    );
+    let r = crate::check::check_threshold_rule(reference, culled, threshold);
+    assert!(r.holds(), "{what}: {r}");
 }
 
 fn job(n: usize, weights: &[f32]) -> RenderJob {
