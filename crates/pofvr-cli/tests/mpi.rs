@@ -1,6 +1,7 @@
 //! `pofvr render` under `mpirun` (built with `--features mpi`): the frame of 1 to 4 MPI ranks
 //! is the in-process frame, for both curves; sequences; a failing rank ends the job fast with
-//! a message naming it. Skipped, with the reason printed, where `mpirun` is absent.
+//! a message naming it. Each test is `#[ignore = "needs MPI (mpirun)"]`: `.ci/run`, which
+//! installs OpenMPI, runs them with `--ignored`; run so without `mpirun`, they fail saying so.
 //!
 //! These live in the CLI crate rather than in `pofvr-mpi` because they run the `pofvr` binary
 //! itself, which cargo builds (with the feature) only for this crate's tests.
@@ -12,20 +13,12 @@ use std::time::{Duration, Instant};
 
 const PHANTOM: &str = "phantom:head:64";
 
-fn have_mpirun() -> bool {
-    let found = Command::new("mpirun").arg("--version").output().is_ok();
-    if !found {
-        eprintln!("SKIPPED: mpirun not found on PATH (install openmpi-bin to run MPI tests)");
-    }
-    found
-}
-
 /// `pofvr ARGS` as `np` MPI ranks.
 fn mpirun(np: usize, args: &[&str], dir: &Path) -> (Output, Duration) {
-    // OpenMPI's launcher has been seen, once in many runs, to hang after every rank had
-    // exited (the ranks left as zombies, `mpirun` deaf to SIGTERM): a launcher fault, not
-    // pofvr's. A run that outlives the deadline is killed and tried once more, so that such
-    // a hang fails loudly at worst instead of stalling the suite.
+    // OpenMPI's launcher can, rarely, hang after every rank has exited (the ranks left as
+    // zombies, `mpirun` deaf to SIGTERM): a launcher fault, not pofvr's. A run that outlives
+    // the deadline is killed and tried once more, so that such a hang fails loudly at worst
+    // instead of stalling the suite.
     const DEADLINE: Duration = Duration::from_secs(20);
     for attempt in 1..=2 {
         let t = Instant::now();
@@ -58,7 +51,9 @@ fn run_with_deadline(np: usize, args: &[&str], dir: &Path, deadline: Duration) -
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .expect("run mpirun");
+        .unwrap_or_else(|e| {
+            panic!("this test needs MPI: cannot run mpirun ({e}); install openmpi-bin")
+        });
     // Both pipes drained as the job runs, so that a chatty job cannot block on a full pipe.
     let drain = |mut r: Box<dyn Read + Send>| {
         std::thread::spawn(move || {
@@ -156,10 +151,8 @@ fn render_args<'a>(curve: &'a str, cull: &'a str, out: &'a str) -> Vec<&'a str> 
 }
 
 #[test]
+#[ignore = "needs MPI (mpirun)"]
 fn one_to_four_mpi_ranks_give_the_in_process_frame_for_both_curves() {
-    if !have_mpirun() {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     for (curve, cull) in [("hilbert", "none"), ("z", "none"), ("hilbert", "exact")] {
@@ -231,10 +224,8 @@ fn one_to_four_mpi_ranks_give_the_in_process_frame_for_both_curves() {
 }
 
 #[test]
+#[ignore = "needs MPI (mpirun)"]
 fn two_replicas_under_mpi_hold_every_brick_twice_and_give_the_same_frame() {
-    if !have_mpirun() {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let o = pofvr(&render_args("hilbert", "none", "one.raw"), d);
@@ -285,10 +276,8 @@ fn two_replicas_under_mpi_hold_every_brick_twice_and_give_the_same_frame() {
 }
 
 #[test]
+#[ignore = "needs MPI (mpirun)"]
 fn an_orbit_sequence_under_mpi_has_one_stats_entry_per_frame() {
-    if !have_mpirun() {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let (o, _) = mpirun(
@@ -366,10 +355,8 @@ fn assert_aborts_fast(o: &Output, took: Duration, cause: &str) {
 }
 
 #[test]
+#[ignore = "needs MPI (mpirun)"]
 fn a_missing_volume_file_aborts_the_job_within_seconds() {
-    if !have_mpirun() {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let (o, took) = mpirun(
         3,
@@ -390,10 +377,8 @@ fn a_missing_volume_file_aborts_the_job_within_seconds() {
 }
 
 #[test]
+#[ignore = "needs MPI (mpirun)"]
 fn rank_zero_failing_while_the_others_wait_aborts_the_job() {
-    if !have_mpirun() {
-        return;
-    }
     // Rank 0 fails writing the image after the frame, while ranks 1..3 already wait for the
     // end-of-run gather: the job must end at once, naming rank 0.
     let dir = tempfile::tempdir().unwrap();
@@ -418,10 +403,8 @@ fn rank_zero_failing_while_the_others_wait_aborts_the_job() {
 }
 
 #[test]
+#[ignore = "needs MPI (mpirun)"]
 fn ranks_flag_under_mpirun_is_refused() {
-    if !have_mpirun() {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let (o, took) = mpirun(
         2,

@@ -137,7 +137,6 @@ fn main() {
                     .map_or(0, |c| c.area()) as u64
             })
             .sum();
-        #[allow(clippy::cast_precision_loss)]
         let pct = |x: u64, of: u64| 100.0 * (1.0 - x as f64 / of.max(1) as f64);
         println!(
             "{n:>5}  {sparse:>11}  {dense:>15}  {full:>17}  {:>13.1}%  {:>18.1}%  {gather:>12}",

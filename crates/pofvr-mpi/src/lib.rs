@@ -129,7 +129,7 @@ unsafe impl Send for Inner {}
 impl Inner {
     /// Frees the requests of completed sends (and their buffers), with one `MPI_Testsome`
     /// over all of them: testing each with `MPI_Test` would run MPI's progress engine once
-    /// per request, which made a frame's thousands of fragments cost seconds.
+    /// per request, and a frame sends thousands of fragments.
     fn reap(&mut self) {
         if self.requests.is_empty() {
             return;

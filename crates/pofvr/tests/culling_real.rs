@@ -1,6 +1,8 @@
 //! Culling on the catalogue's real volumes: every mode against the unculled reference, with
 //! the rule that pixels below the threshold are identical and none differs by more than
-//! 1 − threshold. Skipped, with a printed reason, where the data are absent.
+//! 1 − threshold. Ignored unless run with `--ignored` (they need `../shared/data`).
+
+mod common;
 
 use std::path::{Path, PathBuf};
 
@@ -11,19 +13,6 @@ use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
 use pofvr::pof::{PofSettings, PofTable};
 use pofvr::render::{Camera, Image, Projection, RenderSettings, TransferFunction};
 use pofvr::volume::Volume;
-
-fn data_dir() -> Option<PathBuf> {
-    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    if d.join("CATALOG.md").exists() {
-        Some(d)
-    } else {
-        eprintln!(
-            "skipping: {} not present (a user's clone has no shared data)",
-            d.display()
-        );
-        None
-    }
-}
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -57,8 +46,9 @@ const CASES: [(&str, &str); 7] = [
 ];
 
 #[test]
+#[ignore = "needs ../shared/data (real volumes)"]
 fn culling_is_conservative_on_every_real_volume() {
-    let Some(data) = data_dir() else { return };
+    let data = common::shared_data();
     for (vol, tf) in CASES {
         let volume = Volume::open(&data.join(vol), None).unwrap();
         let tf = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
@@ -109,8 +99,9 @@ fn culling_is_conservative_on_every_real_volume() {
 /// size, and 36×36 would make the test slow), in every mode, for several weight vectors —
 /// which the tables serve without a rebuild.
 #[test]
+#[ignore = "needs ../shared/data (real volumes)"]
 fn pof_culling_is_conservative_on_every_real_volume() {
-    let Some(data) = data_dir() else { return };
+    let data = common::shared_data();
     for (vol, tf) in CASES {
         let volume = Volume::open(&data.join(vol), None).unwrap();
         let tf = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();

@@ -1,8 +1,9 @@
 //! The same data in raw, NRRD (raw and gzip), MetaImage (.mhd, .mha) and NIfTI renders the
 //! same image.
 
+mod common;
+
 use std::io::Write;
-use std::path::Path;
 
 use pofvr::frame::{render_reference, RenderJob};
 use pofvr::render::{families, Camera, Image, Projection, RenderSettings};
@@ -55,12 +56,9 @@ fn every_format_of_the_phantom_renders_the_same_image() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data (real volumes)"]
 fn real_nifti_nrrd_and_metaimage_render_the_same_image() {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/ch2better_mri");
-    if !data.exists() {
-        eprintln!("skipping: {} not present", data.display());
-        return;
-    }
+    let data = common::shared_data().join("ch2better_mri");
     let a = render(Volume::open(&data.join("ch2better_mri.nhdr"), None).unwrap());
     for other in ["ch2better_mri.mhd", "source/ch2better.nii.gz"] {
         let b = render(Volume::open(&data.join(other), None).unwrap());

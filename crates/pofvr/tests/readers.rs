@@ -1,9 +1,11 @@
 //! Integration tests of the volume readers through `Volume::open`: the same voxels written
 //! as raw, NRRD, MetaImage and NIfTI read back identically, and the real volumes of
-//! `shared/data` (when present) match their catalogue.
+//! `shared/data` match their catalogue (ignored unless run with `--ignored`).
+
+mod common;
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use flate2::write::{GzEncoder, ZlibEncoder};
 use flate2::Compression;
@@ -192,19 +194,6 @@ fn bad_inputs_through_open_name_the_file() {
     }
 }
 
-/// `shared/data` beside the repository, or why it cannot be used.
-fn shared_data() -> Result<PathBuf, String> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    if dir.join("CATALOG.md").is_file() {
-        Ok(dir)
-    } else {
-        Err(format!(
-            "{} not found (no shared data on this machine)",
-            dir.display()
-        ))
-    }
-}
-
 const REAL: [&str; 6] = [
     "neghip",
     "ironprot",
@@ -215,14 +204,9 @@ const REAL: [&str; 6] = [
 ];
 
 #[test]
+#[ignore = "needs ../shared/data (real volumes)"]
 fn real_volumes_nrrd_and_mhd_match_the_catalogue() {
-    let data = match shared_data() {
-        Ok(d) => d,
-        Err(why) => {
-            println!("skipping: {why}");
-            return;
-        }
-    };
+    let data = common::shared_data();
     for name in REAL {
         let dir = data.join(name);
         let stats: serde_json::Value =
@@ -267,14 +251,9 @@ fn real_volumes_nrrd_and_mhd_match_the_catalogue() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data (real volumes)"]
 fn real_nifti_equals_its_raw_file() {
-    let data = match shared_data() {
-        Ok(d) => d,
-        Err(why) => {
-            println!("skipping: {why}");
-            return;
-        }
-    };
+    let data = common::shared_data();
     let dir = data.join("ch2better_mri");
     let nii =
         Volume::open(&dir.join("source/ch2better.nii.gz"), None).unwrap_or_else(|e| panic!("{e}"));

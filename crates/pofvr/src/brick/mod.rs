@@ -125,7 +125,6 @@ impl BrickGrid {
             min: f32::INFINITY,
             max: f32::NEG_INFINITY,
         };
-        #[allow(clippy::cast_possible_truncation)]
         let ranges = with_voxels!(volume.data(), v => {
             (0..n)
                 .into_par_iter()
@@ -190,7 +189,6 @@ impl BrickGrid {
 
     /// The brick's index-space box.
     #[must_use]
-    #[allow(clippy::cast_precision_loss)]
     pub fn index_box(&self, id: BrickId) -> IndexBox {
         self.index_box_at(self.coords(id))
     }
@@ -199,7 +197,6 @@ impl BrickGrid {
     /// counts: culling asks for the boxes of eight sub-bricks per visible brick).
     #[inline]
     #[must_use]
-    #[allow(clippy::cast_precision_loss)]
     fn index_box_at(&self, c: [usize; 3]) -> IndexBox {
         let (lo, hi) = self.voxel_bounds_at(c);
         IndexBox {
@@ -223,7 +220,6 @@ impl BrickGrid {
     /// The id of the brick at coordinates `c`.
     #[inline]
     #[must_use]
-    #[allow(clippy::cast_possible_truncation)]
     pub fn id(&self, c: [usize; 3]) -> BrickId {
         BrickId((c[0] + self.counts[0] * (c[1] + self.counts[1] * c[2])) as u32)
     }
@@ -314,7 +310,6 @@ impl BrickGrid {
     }
 
     /// All brick ids.
-    #[allow(clippy::cast_possible_truncation)]
     pub fn ids(&self) -> impl Iterator<Item = BrickId> + '_ {
         (0..self.len() as u32).map(BrickId)
     }

@@ -195,7 +195,6 @@ pub trait Communicator: Send + Sync {
     }
 }
 
-#[allow(clippy::cast_possible_truncation)]
 fn rank_of(r: usize) -> Rank {
     // Sizes are bounded by `u32` when a communicator is built.
     Rank(r as u32)

@@ -144,7 +144,6 @@ impl DirectSend {
         {
             let to = layout.owner(tile_id(owner));
             let mut count = vec![KIND_COUNT];
-            #[allow(clippy::cast_possible_truncation)]
             count.extend_from_slice(&(tiles.len() as u32).to_le_bytes());
             comm.send(to, TAG_FRAGMENTS, count)?;
             for s in tiles {
@@ -198,7 +197,6 @@ impl DirectSend {
     }
 }
 
-#[allow(clippy::cast_possible_truncation)]
 fn tile_id(i: usize) -> TileId {
     // Layouts have at most `u32::MAX` tiles.
     TileId(i as u32)

@@ -272,7 +272,6 @@ impl TileLayout {
             let rows = tiles / cols;
             // Layouts without empty tiles first, then the squarest tiles.
             let empty = cols > bw as usize || rows > bh as usize;
-            #[allow(clippy::cast_precision_loss)]
             let aspect = (f64::from(bw) / cols as f64) / (f64::from(bh) / rows as f64);
             (empty, aspect.ln().abs())
         };
@@ -291,7 +290,6 @@ impl TileLayout {
             d += 1;
         }
         let edges = |lo: u32, len: u32, parts: usize| -> Vec<u32> {
-            #[allow(clippy::cast_possible_truncation)]
             (0..=parts as u64)
                 .map(|i| lo + (i * u64::from(len) / parts as u64) as u32)
                 .collect()
@@ -381,7 +379,6 @@ impl TileLayout {
         };
         let cols = overlaps(&self.col_edges, rect.x0, rect.x1);
         let rows = overlaps(&self.row_edges, rect.y0, rect.y1);
-        #[allow(clippy::cast_possible_truncation)]
         rows.iter()
             .flat_map(|&r| {
                 cols.iter()
@@ -468,7 +465,6 @@ pub fn composite_local(
         .par_chunks_mut(w * BAND_ROWS)
         .enumerate()
         .for_each(|(band, pixels)| {
-            #[allow(clippy::cast_possible_truncation)]
             let (b0, b1) = (
                 (band * BAND_ROWS) as u32,
                 (band * BAND_ROWS + pixels.len() / w) as u32,

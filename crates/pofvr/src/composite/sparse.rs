@@ -81,7 +81,6 @@ impl SparseTile {
                     x += 1;
                 }
                 pixels.extend_from_slice(&row[start..x]);
-                #[allow(clippy::cast_possible_truncation)]
                 spans.push(Span {
                     dy: y - rect.y0,
                     dx: start as u32,
@@ -139,7 +138,6 @@ impl SparseTile {
         for v in [self.rect.x0, self.rect.y0, self.rect.x1, self.rect.y1] {
             out.extend_from_slice(&v.to_le_bytes());
         }
-        #[allow(clippy::cast_possible_truncation)]
         out.extend_from_slice(&(self.spans.len() as u32).to_le_bytes());
         let mut pixels = self.pixels.iter();
         for s in &self.spans {

@@ -124,7 +124,6 @@ impl SfcOrder {
         for z in 0..counts[2] {
             for y in 0..counts[1] {
                 for x in 0..counts[0] {
-                    #[allow(clippy::cast_possible_truncation)]
                     let c = [x as u32, y as u32, z as u32];
                     let key = match curve {
                         Curve::Hilbert => hilbert::index(c, bits),
@@ -179,9 +178,9 @@ impl SfcOrder {
 ///
 /// With `r` replicas (beyond the paper) every brick has `r` owners: its dealt rank and the
 /// ranks `k·ranks/r` further on. Which bricks are visible depends on the view, so with one
-/// owner a few dozen visible bricks per rank leave the busiest rank 10–20 % above the mean
-/// at 32 ranks; with two, each frame gives each visible brick to the less loaded of its
-/// owners ([`BrickAssignment::renderers`]), at the cost of holding twice the bricks.
+/// owner and a few dozen visible bricks per rank, the busiest rank's share is left to
+/// chance; with two, each frame gives each visible brick to the less loaded of its owners
+/// ([`BrickAssignment::renderers`]), at the cost of holding twice the bricks.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BrickAssignment {
     owners: Vec<Rank>,
@@ -232,7 +231,6 @@ impl BrickAssignment {
             }
             let r = next[c] % ranks;
             next[c] += 1;
-            #[allow(clippy::cast_possible_truncation)]
             let rank = Rank(r as u32);
             owners[b.index()] = rank;
             by_rank[r].push(b);
@@ -269,20 +267,15 @@ impl BrickAssignment {
     pub fn owners_of(&self, id: BrickId) -> impl Iterator<Item = Rank> + '_ {
         let n = self.ranks();
         let first = self.owners.get(id.index()).map(|r| r.index());
-        (0..self.replicas).filter_map(move |k| {
-            #[allow(clippy::cast_possible_truncation)]
-            first.map(|f| Rank(((f + k * n / self.replicas) % n) as u32))
-        })
+        (0..self.replicas)
+            .filter_map(move |k| first.map(|f| Rank(((f + k * n / self.replicas) % n) as u32)))
     }
 
     /// Every brick `rank` holds (as any of the owners), in id order.
     #[must_use]
     pub fn held_by(&self, rank: Rank) -> Vec<BrickId> {
         (0..self.owners.len())
-            .map(|i| {
-                #[allow(clippy::cast_possible_truncation)]
-                BrickId(i as u32)
-            })
+            .map(|i| BrickId(i as u32))
             .filter(|id| self.owners_of(*id).any(|r| r == rank))
             .collect()
     }

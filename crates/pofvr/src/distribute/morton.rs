@@ -19,7 +19,6 @@ fn spread(v: u32) -> u64 {
 }
 
 /// Inverse of [`spread`]: gathers bits `3q` into bit `q`.
-#[allow(clippy::cast_possible_truncation)]
 fn compact(v: u64) -> u32 {
     let mut x = v & 0x1249_2492_4924_9249;
     x = (x | (x >> 2)) & 0x10c3_0c30_c30c_30c3;

@@ -98,7 +98,6 @@ macro_rules! voxel_int {
         impl Voxel for $t {
             const TYPE: DataType = $tag;
             #[inline(always)]
-            #[allow(clippy::cast_precision_loss, clippy::cast_lossless)]
             fn to_f32(self) -> f32 {
                 self as f32
             }
@@ -330,7 +329,6 @@ impl Volume {
     /// World-space extent of the sampled box `[0, dims-1]·spacing`.
     #[must_use]
     pub fn world_extent(&self) -> [f32; 3] {
-        #[allow(clippy::cast_precision_loss)]
         std::array::from_fn(|a| (self.dims[a].saturating_sub(1)) as f32 * self.spacing[a])
     }
 

@@ -175,7 +175,6 @@ fn check_header(path: &Path, h: &::nifti::NiftiHeader) -> Result<Layout, VolumeE
         }
     };
     let vox_offset = h.vox_offset;
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     let vox = if vox_offset.is_finite()
         && vox_offset >= HEADER_BYTES as f32
         && vox_offset.fract() == 0.0
@@ -210,7 +209,6 @@ fn check_header(path: &Path, h: &::nifti::NiftiHeader) -> Result<Layout, VolumeE
 
 fn scale<T: Voxel>(v: &[T], slope: f32, inter: f32) -> Vec<f32> {
     let (s, i) = (f64::from(slope), f64::from(inter));
-    #[allow(clippy::cast_possible_truncation)]
     v.iter()
         .map(|x| (f64::from(x.to_f32()) * s + i) as f32)
         .collect()

@@ -355,7 +355,6 @@ fn parse_directions(path: &Path, value: &str) -> Result<[f32; 3], VolumeError> {
                 format!("bad vector {:?}", &rest[..=close]),
             ));
         }
-        #[allow(clippy::cast_possible_truncation)]
         out.push(comps.iter().map(|c| c * c).sum::<f64>().sqrt() as f32);
         rest = rest[close + 1..].trim_start();
     }

@@ -106,7 +106,6 @@ impl Phantom {
     #[must_use]
     pub fn generate(self, n: usize) -> Volume {
         let n = n.max(2);
-        #[allow(clippy::cast_precision_loss)]
         let to_unit = |i: usize| 2.0 * i as f64 / (n - 1) as f64 - 1.0;
         let name = match self {
             Phantom::SheppLogan => format!("shepp-logan phantom {n}³"),
@@ -131,7 +130,6 @@ impl Phantom {
                             value += e.value;
                         }
                     }
-                    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
                     {
                         *out = (value * 250.0).round().clamp(0.0, 255.0) as u8;
                     }
@@ -152,7 +150,6 @@ impl Phantom {
                     let rho = (2.0 * pi * fm * (pi * r / 2.0).cos()).cos();
                     let f = ((1.0 - (pi * z / 2.0).sin()) + alpha * (1.0 + rho))
                         / (2.0 * (1.0 + alpha));
-                    #[allow(clippy::cast_possible_truncation)]
                     {
                         *out = f as f32;
                     }
