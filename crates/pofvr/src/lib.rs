@@ -36,5 +36,6 @@ pub mod distribute;
 pub mod frame;
 pub mod io;
 pub mod pof;
+pub mod pof_measure;
 pub mod render;
 pub mod volume;

@@ -1,18 +1,15 @@
 //! `pofvr pof build|info|check` and `pofvr bench pof`.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Subcommand};
-use glam::DVec3;
-use pofvr::brick::{BrickGrid, BrickId};
-use pofvr::pof::reference::{core_min, ReferenceProbe};
-use pofvr::pof::{direction, Encoding, PofMethod, PofMode, PofSettings, PofTable};
-use pofvr::render::{families, SampledTf, TransferFunction};
+use pofvr::brick::BrickGrid;
+use pofvr::check::{audit_table, AuditSummary};
+use pofvr::pof::{Encoding, PofMethod, PofSettings, PofTable};
+use pofvr::pof_measure::{build_timed, cell_opacities, TimedBuild};
+use pofvr::render::{families, TransferFunction};
 use pofvr::volume::{DataType, RawSpec, Volume};
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::args::{TfArgs, VolumeArgs};
@@ -203,25 +200,7 @@ pub(crate) fn run(cmd: &PofCommand, ui: &Ui) -> Result<()> {
     }
 }
 
-pub(crate) struct Built {
-    pub(crate) table: PofTable,
-    seconds: f64,
-    /// CPU seconds of the process during the build, where the OS tells them.
-    cpu_seconds: Option<f64>,
-    computed_bricks: u64,
-}
-
-/// User + system CPU seconds of this process (Linux `/proc/self/stat`, in USER_HZ = 100
-/// ticks): on a shared machine wall time × threads overstates the cores actually had.
-fn cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
-}
-
+/// Builds the table with a progress bar labelled `label`, timed.
 pub(crate) fn build_table(
     vol: &Volume,
     grid: &BrickGrid,
@@ -230,37 +209,30 @@ pub(crate) fn build_table(
     partial: Option<&Path>,
     ui: &Ui,
     label: &str,
-) -> Result<Built> {
-    let sampled = SampledTf::new(tf, grid.value_range());
+) -> Result<TimedBuild> {
     let bar = ui.bar(0, label);
-    let total = AtomicU64::new(0);
-    let start = Instant::now();
-    let cpu0 = cpu_seconds();
-    let table =
-        PofTable::build_resumable(vol, grid, tf, &sampled, settings, partial, &|done, n| {
-            total.store(n, Ordering::Relaxed);
-            bar.set_length(n);
-            bar.set_position(done);
-        })?;
+    let built = build_timed(vol, grid, tf, settings, partial, &|done, n| {
+        bar.set_length(n);
+        bar.set_position(done);
+    })?;
     bar.finish_and_clear();
-    Ok(Built {
-        table,
-        seconds: start.elapsed().as_secs_f64(),
-        cpu_seconds: cpu_seconds().zip(cpu0).map(|(b, a)| b - a),
-        computed_bricks: total.load(Ordering::Relaxed),
-    })
+    Ok(built)
 }
 
-/// Brick-views per core-second: per CPU second used when known, else per wall second and
-/// worker thread.
-#[allow(clippy::cast_precision_loss)]
-fn rate(b: &Built, settings: &PofSettings) -> f64 {
-    let views = (settings.views[0] * settings.views[1]) as f64;
-    let core_seconds = b
-        .cpu_seconds
-        .filter(|c| *c > 0.0)
-        .unwrap_or(b.seconds * rayon::current_num_threads() as f64);
-    b.computed_bricks as f64 * views / core_seconds.max(1e-9)
+/// The audit of `table` over `views` brute-force views from `seed`, with a progress bar.
+fn check_table(
+    vol: &Volume,
+    grid: &BrickGrid,
+    tf: &TransferFunction,
+    table: &PofTable,
+    views: usize,
+    seed: u64,
+    ui: &Ui,
+) -> Result<AuditSummary> {
+    let bar = ui.bar(views as u64, "brute-force views");
+    let s = audit_table(vol, grid, tf, table, views, seed, &|_, _| bar.inc(1))?;
+    bar.finish_and_clear();
+    Ok(s)
 }
 
 fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
@@ -294,7 +266,7 @@ fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
         built.table.bytes_per_brick_per_basis(),
         built.table.file_len(),
         built.seconds,
-        rate(&built, &settings)
+        built.brick_views_per_core_second()
     );
     if settings.method == PofMethod::Sampled {
         eprintln!(
@@ -462,140 +434,6 @@ fn upgrade(a: &PofUpgradeArgs) -> Result<()> {
     Ok(())
 }
 
-/// A small deterministic generator (SplitMix64), so `pof check --seed` is reproducible.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    #[allow(clippy::cast_precision_loss)]
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn dir(&mut self) -> DVec3 {
-        let z = self.unit() * 2.0 - 1.0;
-        let phi = self.unit() * std::f64::consts::TAU;
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        DVec3::new(r * phi.cos(), r * phi.sin(), z)
-    }
-}
-
-#[derive(Serialize, Default, Clone, Copy)]
-struct CheckSummary {
-    views: usize,
-    with_core: usize,
-    violations: usize,
-    worst_excess: f32,
-    mean_lookup: f64,
-    mean_true_min: f64,
-    /// Share of footprint pixels whose ray spans at least L: where the POF is composited.
-    core_share: f64,
-}
-
-fn check_table(
-    vol: &Volume,
-    grid: &BrickGrid,
-    tf: &TransferFunction,
-    table: &PofTable,
-    n: usize,
-    seed: u64,
-    ui: &Ui,
-) -> Result<CheckSummary> {
-    let sampled = SampledTf::new(tf, grid.value_range());
-    let stored: Vec<BrickId> = grid
-        .ids()
-        .filter(|id| !sampled.is_empty(grid.range(*id), &tf.weights))
-        .collect();
-    if stored.is_empty() {
-        bail!("no non-empty brick to check for these weights");
-    }
-    let mut rng = Rng(seed);
-    // Every fourth view looks along an axis: such directions lie on the borders of view
-    // cells, where lookups take the best of the cells that meet there.
-    let axes = [
-        glam::DVec3::X,
-        glam::DVec3::NEG_X,
-        glam::DVec3::Y,
-        glam::DVec3::NEG_Y,
-        glam::DVec3::Z,
-        glam::DVec3::NEG_Z,
-    ];
-    let probes: Vec<(BrickId, ReferenceProbe)> = (0..n)
-        .map(|k| {
-            #[allow(clippy::cast_possible_truncation)]
-            let id = stored[(rng.next() % stored.len() as u64) as usize];
-            let dir = if k % 4 == 3 {
-                axes[(k / 4) % axes.len()]
-            } else {
-                rng.dir()
-            };
-            (
-                id,
-                ReferenceProbe {
-                    dir,
-                    phase: rng.unit(),
-                    jitter: [rng.unit(), rng.unit()],
-                    pixel: 0.5,
-                },
-            )
-        })
-        .collect();
-    let bar = ui.bar(n as u64, "brute-force views");
-    let results: Vec<(f32, Option<f32>, usize, usize)> = probes
-        .par_iter()
-        .map(|(id, p)| {
-            let r = core_min(
-                vol,
-                grid,
-                &sampled,
-                *id,
-                &tf.weights,
-                table.step(),
-                table.ert(),
-                table.core_length(),
-                p,
-            );
-            let a = table.opacity(*id, p.dir, &tf.weights, PofMode::Conservative);
-            bar.inc(1);
-            (a, r.core_min, r.core_pixels, r.footprint_pixels)
-        })
-        .collect();
-    bar.finish_and_clear();
-    let mut s = CheckSummary {
-        views: n,
-        ..CheckSummary::default()
-    };
-    let (mut core_px, mut foot_px) = (0usize, 0usize);
-    for (a, m, c, f) in results {
-        core_px += c;
-        foot_px += f;
-        let Some(m) = m else { continue };
-        s.with_core += 1;
-        s.mean_lookup += f64::from(a);
-        s.mean_true_min += f64::from(m);
-        if a > m {
-            s.violations += 1;
-            s.worst_excess = s.worst_excess.max(a - m);
-        }
-    }
-    #[allow(clippy::cast_precision_loss)]
-    let k = s.with_core.max(1) as f64;
-    s.mean_lookup /= k;
-    s.mean_true_min /= k;
-    #[allow(clippy::cast_precision_loss)]
-    {
-        s.core_share = core_px as f64 / foot_px.max(1) as f64;
-    }
-    Ok(s)
-}
-
 fn check(a: &PofCheckArgs, ui: &Ui) -> Result<()> {
     let vol = resolve::volume(&a.volume)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
@@ -674,7 +512,7 @@ struct VolumeReport {
     mean_pof: f64,
     share_of_brick_views_at_least_half: f64,
     encodings: Vec<EncodingReport>,
-    check: CheckSummary,
+    check: AuditSummary,
 }
 
 pub(crate) fn bench(a: &BenchPofArgs, ui: &Ui) -> Result<()> {
@@ -704,30 +542,10 @@ pub(crate) fn bench(a: &BenchPofArgs, ui: &Ui) -> Result<()> {
     );
     for (name, vol, tf) in &cases {
         let grid = BrickGrid::from_volume(vol, 16)?;
-        let sampled = SampledTf::new(tf, grid.value_range());
-        let nonempty: Vec<bool> = grid
-            .ids()
-            .map(|id| !sampled.is_empty(grid.range(id), &tf.weights))
-            .collect();
         let built = build_table(vol, &grid, tf, &settings, None, ui, name)?;
         let t = &built.table;
-        // How much the table can cull: its opacities over every stored brick and view cell.
-        let (mut sum, mut half, mut count) = (0f64, 0u64, 0u64);
-        for id in grid.ids().filter(|id| nonempty[id.index()]) {
-            for i in 0..settings.views[0] {
-                for j in 0..settings.views[1] {
-                    #[allow(clippy::cast_precision_loss)]
-                    let d = direction(
-                        (i as f64 + 0.5) / settings.views[0] as f64 * std::f64::consts::PI,
-                        (j as f64 + 0.5) / settings.views[1] as f64 * std::f64::consts::TAU,
-                    );
-                    let o = t.opacity(id, d, &tf.weights, PofMode::Conservative);
-                    sum += f64::from(o);
-                    half += u64::from(o >= 0.5);
-                    count += 1;
-                }
-            }
-        }
+        // How much the table can cull: its lookups over every non-empty brick and view cell.
+        let cells = cell_opacities(t, &grid, tf);
         let views32 = settings.views.map(|v| u32::try_from(v).unwrap_or(u32::MAX));
         let encodings = Encoding::ALL
             .iter()
@@ -737,7 +555,6 @@ pub(crate) fn bench(a: &BenchPofArgs, ui: &Ui) -> Result<()> {
             })
             .collect::<Vec<_>>();
         let check = check_table(vol, &grid, tf, t, 100, 7, ui)?;
-        #[allow(clippy::cast_precision_loss)]
         let r = VolumeReport {
             volume: name.clone(),
             dims: vol.dims(),
@@ -747,10 +564,10 @@ pub(crate) fn bench(a: &BenchPofArgs, ui: &Ui) -> Result<()> {
             views: settings.views,
             seconds: built.seconds,
             cpu_seconds: built.cpu_seconds,
-            threads: rayon::current_num_threads(),
-            brick_views_per_core_second: rate(&built, &settings),
-            mean_pof: sum / count.max(1) as f64,
-            share_of_brick_views_at_least_half: half as f64 / count.max(1) as f64,
+            threads: built.threads,
+            brick_views_per_core_second: built.brick_views_per_core_second(),
+            mean_pof: cells.mean,
+            share_of_brick_views_at_least_half: cells.share_at_least_half,
             encodings,
             check,
         };

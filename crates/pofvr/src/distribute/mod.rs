@@ -8,6 +8,7 @@
 
 pub mod hilbert;
 pub mod morton;
+pub mod setup;
 #[cfg(test)]
 mod test;
 
