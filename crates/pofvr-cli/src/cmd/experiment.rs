@@ -97,7 +97,6 @@ pub(crate) struct ExperimentArgs {
     pub(crate) seed: u64,
 }
 
-
 /// Resolved settings of a run (`plan` in `report.json`).
 #[derive(Serialize, Clone)]
 pub(crate) struct Plan {
@@ -122,11 +121,11 @@ pub(crate) struct Plan {
 impl Plan {
     /// The flags resolved, with the `--quick` defaults where they differ.
     fn of(a: &ExperimentArgs) -> Result<Self> {
-        let (width, height) = resolve::size(
-            a.size
-                .as_deref()
-                .unwrap_or(if a.quick { "128x128" } else { "512x512" }),
-        )?;
+        let (width, height) = resolve::size(a.size.as_deref().unwrap_or(if a.quick {
+            "128x128"
+        } else {
+            "512x512"
+        }))?;
         let max_ranks = a.max_ranks.unwrap_or(if a.quick { 4 } else { 8 });
         if !(1..=256).contains(&max_ranks) {
             bail!("--max-ranks {max_ranks} must be in 1..=256");

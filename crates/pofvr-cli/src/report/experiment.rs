@@ -3,9 +3,7 @@
 //! that shows them.
 
 use anyhow::Result;
-use pofvr::experiment::{
-    Audit, Method, PofBuildRow, RankBreakdown, Speedup, TfFamily, ViewSweep,
-};
+use pofvr::experiment::{Audit, Method, PofBuildRow, RankBreakdown, Speedup, TfFamily, ViewSweep};
 use pofvr::render::Image;
 use serde_json::{json, Value};
 
@@ -226,7 +224,11 @@ pub(crate) fn fig6(out: &mut ReportDir, f: &Speedup) -> Result<()> {
     }
     speeds.push(Line {
         name: "ideal".into(),
-        points: f.rank_counts.iter().map(|&r| (r as f64, r as f64)).collect(),
+        points: f
+            .rank_counts
+            .iter()
+            .map(|&r| (r as f64, r as f64))
+            .collect(),
         dashed: true,
     });
     out.csv("fig6_speedup.csv", &csv)?;
@@ -318,7 +320,10 @@ pub(crate) fn fig8(
             &cats,
             &k_names(names),
             "non-empty bricks",
-            &[stack("visible", |r| r.visible), stack("culled", |r| r.culled)],
+            &[
+                stack("visible", |r| r.visible),
+                stack("culled", |r| r.culled),
+            ],
         )?;
         out.write(&format!("fig8_tf_family_{name}.svg"), svg.as_bytes())?;
     }

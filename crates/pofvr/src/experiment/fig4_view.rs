@@ -71,7 +71,14 @@ pub fn culling_vs_view(
     let mut rows = Vec::new();
     let mut sums = vec![(0.0, 0.0); methods.len()];
     for &az in &azimuths {
-        let cam = Camera::orbit(&job.volume, az, 0.0, width, height, Projection::Orthographic);
+        let cam = Camera::orbit(
+            &job.volume,
+            az,
+            0.0,
+            width,
+            height,
+            Projection::Orthographic,
+        );
         for (k, m) in methods.iter().enumerate() {
             let opts = FrameOptions {
                 cull: m.mode,

@@ -85,7 +85,15 @@ pub fn tf_family(
     progress: &dyn Progress,
 ) -> Result<TfFamily, ExperimentError> {
     let base = job.tf.weights.clone();
-    let result = measure(job, methods, primary, camera, threshold, (k0s, k1s), progress);
+    let result = measure(
+        job,
+        methods,
+        primary,
+        camera,
+        threshold,
+        (k0s, k1s),
+        progress,
+    );
     job.tf.set_weights(base)?;
     result
 }
