@@ -68,7 +68,6 @@ fn render_stats(dir: &Path, view: &str, cull: &str, weights: Option<&str>) -> se
 }
 
 #[test]
-#[allow(clippy::too_many_lines)]
 fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
     let dir = tempfile::tempdir().unwrap();
     let t = std::time::Instant::now();

@@ -254,7 +254,7 @@ fn read_table(a: &ExperimentArgs, job: &RenderJob, ui: &Ui) -> Result<PofSource>
         );
     }
     Ok(PofSource::Read {
-        table,
+        table: Box::new(table),
         from: p.display().to_string(),
     })
 }
@@ -263,7 +263,6 @@ fn read_table(a: &ExperimentArgs, job: &RenderJob, ui: &Ui) -> Result<PofSource>
 const NO_SETS: &str = "not measured: POF sets were not built (they are skipped with --quick for \
                        their build cost; pass --pof-sets)";
 
-#[allow(clippy::too_many_lines)]
 pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     let t_start = Instant::now();
     let plan = Plan::of(a)?;
@@ -290,7 +289,6 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     let fig1 = report::fig1(&mut out, &plan, &pofs.rows, names.len())?;
     summary.insert("pof_construction".into(), fig1);
 
-    #[allow(clippy::cast_precision_loss)]
     let range_bound = RangeBound::new(
         &job.grid,
         &job.sampled,

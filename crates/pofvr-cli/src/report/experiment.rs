@@ -412,7 +412,6 @@ pub(crate) struct Page<'a> {
 }
 
 /// The `index.html` page.
-#[allow(clippy::too_many_lines)]
 pub(crate) fn page(p: &Page<'_>, title: &str) -> String {
     let plan = p.plan;
     let mut html = Html::new();

@@ -14,8 +14,8 @@ use super::{ExperimentError, Progress};
 pub enum PofSource {
     /// Read beforehand (from the file named), not timed.
     Read {
-        /// The table.
-        table: PofTable,
+        /// The table (boxed: a table is large beside the other variant).
+        table: Box<PofTable>,
         /// Where it came from, as the figure's `source` column says it.
         from: String,
     },
@@ -141,7 +141,7 @@ pub fn pof_construction(
                 &format!("read from {from}"),
                 None,
             ));
-            (table, false)
+            (*table, false)
         }
         PofSource::Build => {
             let (t, row) = build(job, views, Encoding::Table, false, progress)?;

@@ -102,7 +102,11 @@ pub fn speedup(
                 };
                 let st = timed_point(job, m, camera, &opts, reps)?;
                 let speedup = *t1.get_or_insert(st.frame_ms) / st.frame_ms;
-                if best.as_ref().map_or(true, |b| b.speedup < speedup) {
+                let better = match &best {
+                    Some(b) => b.speedup < speedup,
+                    None => true,
+                };
+                if better {
                     best = Some(BestSpeedup {
                         best: format!("{curve}, cull {}", m.name),
                         ranks: r,

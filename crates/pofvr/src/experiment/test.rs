@@ -91,7 +91,7 @@ fn pof_construction_builds_every_encoding_and_the_sets_when_asked() {
         &j,
         [6, 6],
         PofSource::Read {
-            table: p.table,
+            table: Box::new(p.table),
             from: "memory".into(),
         },
         false,

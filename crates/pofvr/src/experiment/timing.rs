@@ -96,6 +96,5 @@ pub fn load_balance(st: &FrameStats) -> f64 {
 /// Share of the frame's non-empty bricks that were culled.
 #[must_use]
 pub fn culled_fraction(st: &FrameStats) -> f64 {
-    let f = st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64;
-    f
+    st.bricks.culled as f64 / st.bricks.non_empty.max(1) as f64
 }
