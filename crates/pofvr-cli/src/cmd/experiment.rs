@@ -13,7 +13,6 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Result};
 use clap::Args;
 use indicatif::ProgressBar;
-use pofvr::cull::range_bound::RangeBound;
 use pofvr::cull::CullMode;
 use pofvr::experiment::{self as exp, Method, PofSource, Progress};
 use pofvr::frame::RenderJob;
@@ -289,51 +288,8 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     let fig1 = report::fig1(&mut out, &plan, &pofs.rows, names.len())?;
     summary.insert("pof_construction".into(), fig1);
 
-    let range_bound = RangeBound::new(
-        &job.grid,
-        &job.sampled,
-        job.settings.step,
-        job.settings.ert,
-        a.volume.brick as f32 / 2.0,
-    );
-    let sets = pofs.sets();
-    let methods: Vec<Method<'_>> = vec![
-        Method::none(),
-        Method {
-            name: "pof-table",
-            mode: CullMode::Pof,
-            bound: Some(&pofs.table),
-            missing: None,
-            conservative: true,
-            about: "conservative POF culling, POFs stored as f32 tables",
-        },
-        Method {
-            name: "pof-cubic",
-            mode: CullMode::Pof,
-            bound: Some(&pofs.cubic),
-            missing: None,
-            conservative: true,
-            about: "conservative POF culling, POFs stored as cubic polynomials",
-        },
-        Method {
-            name: "pof-set",
-            mode: CullMode::PofSet,
-            bound: sets.map(|t| t as _),
-            missing: sets.is_none().then_some(NO_SETS),
-            conservative: false,
-            about: "aggressive POF-set culling (not guaranteed; audited for information)",
-        },
-        Method::exact(),
-        Method {
-            name: "range-bound",
-            mode: CullMode::Pof,
-            bound: Some(&range_bound),
-            missing: None,
-            conservative: true,
-            about: "the POF culling path with a bound from each brick's value range alone \
-                    (no precompute; the baseline POFs must beat)",
-        },
-    ];
+    let range = exp::range_bound(&job);
+    let methods = exp::methods(&pofs, &range, NO_SETS);
     let primary = *exp::primary(&methods)?;
     let avail: Vec<Method<'_>> = methods.iter().copied().filter(Method::available).collect();
     let culling: Vec<Method<'_>> = avail

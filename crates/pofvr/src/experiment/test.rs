@@ -4,7 +4,6 @@
 use super::audit::SplitMix;
 use super::bench_cull::{self, TargetSpec, CASES};
 use super::*;
-use crate::cull::range_bound::RangeBound;
 use crate::cull::CullMode;
 use crate::frame::{render_frame, FrameOptions, RenderJob};
 use crate::render::{families, Camera, Projection, RenderSettings};
@@ -26,16 +25,6 @@ fn job() -> RenderJob {
 
 fn pofs(job: &RenderJob, sets: bool) -> PofBuild {
     pof_construction(job, [6, 6], PofSource::Build, sets, &NoProgress).unwrap()
-}
-
-fn range(job: &RenderJob) -> RangeBound {
-    RangeBound::new(
-        &job.grid,
-        &job.sampled,
-        job.settings.step,
-        job.settings.ert,
-        4.0,
-    )
 }
 
 fn pof_method<'a>(name: &'static str, bound: &'a dyn crate::cull::OpacityBound) -> Method<'a> {
@@ -166,7 +155,7 @@ fn a_frame_with_one_core_per_rank_is_the_frame() {
 #[test]
 fn rank_breakdown_has_every_rank_and_they_render_the_visible_bricks() {
     let j = job();
-    let r = range(&j);
+    let r = range_bound(&j);
     let methods = [Method::none(), pof_method("range-bound", &r)];
     let f = rank_breakdown(&j, &methods, &camera(&j), 0.95, 3, 1, &NoProgress).unwrap();
     assert_eq!(f.frames.len(), 2);
@@ -245,20 +234,30 @@ fn tf_family_measures_each_weighting_and_restores_the_weights() {
 fn the_audit_finds_no_conservative_method_breaking_the_rule() {
     let j = job();
     let p = pofs(&j, true);
-    let r = range(&j);
-    let sets = Method {
-        name: "pof-set",
-        mode: CullMode::PofSet,
-        conservative: false,
-        ..pof_method("pof-set", p.sets().unwrap())
-    };
-    let methods = [
-        pof_method("pof-table", &p.table),
-        pof_method("pof-cubic", &p.cubic),
-        sets,
-        Method::exact(),
-        pof_method("range-bound", &r),
-    ];
+    let r = range_bound(&j);
+    let all = methods(&p, &r, "no sets");
+    let names: Vec<&str> = all.iter().map(|m| m.name).collect();
+    assert_eq!(
+        names,
+        [
+            "none",
+            "pof-table",
+            "pof-cubic",
+            "pof-set",
+            "exact",
+            "range-bound"
+        ]
+    );
+    assert!(all.iter().all(Method::available));
+    assert_eq!(primary(&all).unwrap().name, "pof-table");
+    let methods: Vec<Method<'_>> = all
+        .into_iter()
+        .filter(|m| m.mode != CullMode::None)
+        .collect();
+    assert!(
+        methods.iter().any(|m| !m.conservative),
+        "pof-set is audited too"
+    );
     let a = audit(&j, &methods, 0.95, 6, 1, SIZE, &NoProgress).unwrap();
     assert_eq!(a.rows.len(), 6 * methods.len());
     assert_eq!(a.pixels_per_view, u64::from(SIZE.0 * SIZE.1));
