@@ -1,38 +1,18 @@
 //! `pofvr bench …`: performance reports measured in one run.
 
-use std::time::Instant;
-
 use anyhow::{Context, Result};
 use pofvr::cull::ideal::IdealPofs;
 use pofvr::cull::OpacityBound;
 use pofvr::experiment::bench_cull::{self as bench, SweepSummary, SweepView, TargetSpec};
 use pofvr::frame::RenderJob;
-use pofvr::render::{families, Camera, Projection, RayCaster, RenderSettings};
+use pofvr::render::{families, Camera, Projection, RenderSettings};
 use pofvr::volume::phantom::Phantom;
 use pofvr::volume::Volume;
-use serde::Serialize;
 
 use crate::args::{BenchCullArgs, BenchRenderArgs};
 use crate::cmd::experiment::Bars;
 use crate::progress::Ui;
 use crate::resolve;
-
-#[derive(Serialize)]
-struct RenderCase {
-    volume: String,
-    view: &'static str,
-    early_termination: bool,
-    median_ms: f64,
-    samples: u64,
-    samples_per_second_per_core: f64,
-    /// The sample loop measured: "avx2" (eight samples at a time) or "sse2".
-    simd: &'static str,
-    /// The same frame with the one-sample SSE2 loop (reps interleaved with the above), when
-    /// the loop measured is another.
-    one_sample_loop_ms: Option<f64>,
-    /// `one_sample_loop_ms / median_ms`.
-    speedup_over_one_sample_loop: Option<f64>,
-}
 
 pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
     let (w, h) = resolve::size(&a.size)?;
@@ -55,61 +35,9 @@ pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
             RenderJob::new(vol, tf, 16, RenderSettings::default())?,
         ));
     }
-    let views: [(&str, f64, f64); 2] = [("axis-aligned", 0.0, 0.0), ("oblique", 33.0, 27.0)];
-    let total = (jobs.len() * views.len() * 2 * a.reps) as u64;
-    let pb = ui.bar(total, "bench render");
+    let bars = Bars::new(ui);
+    let cases = pofvr::experiment::bench_render(&jobs, (w, h), a.reps, &bars)?;
     let threads = rayon::current_num_threads();
-    let mut cases = Vec::new();
-    for (name, job) in &jobs {
-        for (view, az, el) in views {
-            for ert in [true, false] {
-                let settings = RenderSettings {
-                    ert: if ert { 0.99 } else { 2.0 },
-                    ..job.settings
-                };
-                let cls = job.sampled.classify(&job.tf.weights, settings.step);
-                let cam = Camera::orbit(&job.volume, az, el, w, h, Projection::Orthographic);
-                let caster = RayCaster::new(&job.volume, &cls, settings);
-                let one = RayCaster::new(&job.volume, &cls, settings).with_avx2(false);
-                let compare = caster.simd() != one.simd();
-                let (mut times, mut one_times) = (Vec::new(), Vec::new());
-                let mut samples = 0;
-                for _ in 0..a.reps.max(1) {
-                    let t = Instant::now();
-                    let (_, st) = caster.render(&cam);
-                    times.push(t.elapsed().as_secs_f64());
-                    samples = st.samples;
-                    if compare {
-                        // Interleaved, so that both loops see the same machine.
-                        let t = Instant::now();
-                        let (_, st1) = one.render(&cam);
-                        one_times.push(t.elapsed().as_secs_f64());
-                        anyhow::ensure!(st1 == st, "the sample loops disagree on {name}");
-                    }
-                    pb.inc(1);
-                }
-                let median = |mut v: Vec<f64>| {
-                    v.sort_by(f64::total_cmp);
-                    v.get(v.len() / 2).copied()
-                };
-                let med = median(times).unwrap_or(f64::NAN);
-                let one_med = median(one_times);
-                let per_core = samples as f64 / med / threads as f64;
-                cases.push(RenderCase {
-                    volume: name.clone(),
-                    view,
-                    early_termination: ert,
-                    median_ms: med * 1e3,
-                    samples,
-                    samples_per_second_per_core: per_core,
-                    simd: caster.simd(),
-                    one_sample_loop_ms: one_med.map(|m| m * 1e3),
-                    speedup_over_one_sample_loop: one_med.map(|m| m / med),
-                });
-            }
-        }
-    }
-    pb.finish_and_clear();
     println!(
         "{:<40} {:<13} {:>4} {:>10} {:>12} {:>16} {:>6} {:>12}",
         "volume", "view", "ert", "ms", "Msamples", "Msamples/s/core", "loop", "vs 1-sample"

@@ -12,9 +12,11 @@
 //! - [`tf_family`] (figure 8): culling as the family's weights change.
 //! - [`audit`]: the threshold rule checked on random views.
 //! - [`bench_cull`]: the culling bench (cases, view sweep, named measures and targets).
+//! - [`bench_render`]: the ray caster's samples per second.
 
 mod audit;
 pub mod bench_cull;
+mod bench_render;
 mod fig1_pof;
 mod fig4_view;
 mod fig5_ranks;
@@ -26,6 +28,7 @@ mod timing;
 
 pub use audit::{audit, Audit, AuditMethod, AuditRow};
 pub use bench_cull::{bench_cull, CullBench, CullCase};
+pub use bench_render::{bench_render, RenderCase};
 pub use fig1_pof::{pof_construction, PofBuild, PofBuildRow, PofSource};
 pub use fig4_view::{culling_vs_view, MethodMean, ViewRow, ViewSweep};
 pub use fig5_ranks::{rank_breakdown, RankBreakdown, RankFrame};
@@ -55,6 +58,9 @@ pub enum ExperimentError {
     /// The worker threads of a timed point could not be started.
     #[error("cannot start the worker threads of a timed point: {0}")]
     Threads(#[from] rayon::ThreadPoolBuildError),
+    /// A cross-check of two ways of computing one thing failed.
+    #[error("{0}")]
+    Check(String),
     /// A setting out of range (names the setting, the value and the range).
     #[error("{0}")]
     Setting(String),

@@ -352,3 +352,27 @@ fn bench_cull_measures_every_case_and_checks_named_targets() {
     let pts = s.points_below_exact_pof.unwrap();
     assert!(pts.worst >= pts.mean && pts.mean >= 0.0, "{pts:?}");
 }
+
+#[test]
+fn bench_render_measures_each_view_with_and_without_early_termination() {
+    let jobs = [("head".to_string(), job())];
+    let cases = bench_render(&jobs, SIZE, 1, &NoProgress).unwrap();
+    let key: Vec<(&str, bool)> = cases
+        .iter()
+        .map(|c| (c.view, c.early_termination))
+        .collect();
+    assert_eq!(
+        key,
+        [
+            ("axis-aligned", true),
+            ("axis-aligned", false),
+            ("oblique", true),
+            ("oblique", false)
+        ]
+    );
+    for pair in cases.chunks(2) {
+        // Early termination only ever drops samples.
+        assert!(pair[0].samples <= pair[1].samples, "{pair:?}");
+        assert!(pair[0].samples > 0 && pair[0].samples_per_second_per_core > 0.0);
+    }
+}
