@@ -298,22 +298,20 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         .filter(|m| m.mode != CullMode::None)
         .collect();
     let timed = [Method::none(), primary];
-    let camera = |job: &RenderJob| {
-        Camera::orbit(
-            &job.volume,
-            plan.view[0],
-            plan.view[1],
-            width,
-            height,
-            Projection::Orthographic,
-        )
-    };
+    // The view of figures 5, 6 and 8.
+    let cam = Camera::orbit(
+        &job.volume,
+        plan.view[0],
+        plan.view[1],
+        width,
+        height,
+        Projection::Orthographic,
+    );
 
     let fig4 = exp::culling_vs_view(&job, &avail, thr, (width, height), &bars)?;
     report::fig4(&mut out, &fig4)?;
     summary.insert("culling_vs_view".into(), serde_json::to_value(&fig4.means)?);
 
-    let cam = camera(&job);
     let fig5 = exp::rank_breakdown(
         &job,
         &timed,
