@@ -267,11 +267,12 @@ pub(crate) struct BenchRenderArgs {
 
 #[derive(Args, Debug)]
 pub(crate) struct BenchCullArgs {
-    /// Volume (default: the largest catalogued real volume when ../shared/data exists,
-    /// otherwise the 256³ head phantom).
+    /// Volume (culling is for occluding families: e.g. the catalogue's MRI with
+    /// --tf tfs/mri-brain-opaque.json).
+    /// > default: phantom:head:256
     pub(crate) volume: Option<String>,
-    /// Transfer-function family (default: the phantom's, or the occluding
-    /// tfs/mri-brain-opaque.json with the catalogue's MRI).
+    /// Transfer-function family.
+    /// > default: the phantom's
     #[arg(long, value_name = "TF.json")]
     pub(crate) tf: Option<PathBuf>,
     /// Precomputed POFs for the pof and pof-set modes (built on the fly when absent).
@@ -307,4 +308,9 @@ pub(crate) struct BenchCullArgs {
     /// `exact`, it tells the tables' slack from what one number per brick cannot say.
     #[arg(long)]
     pub(crate) ideal: bool,
+    /// Goals to check the measures against and report under "targets": a JSON list of
+    /// {"what", "target", "at_most"} (benches/targets/cull.json holds issue 4's).
+    /// > default: none
+    #[arg(long, value_name = "FILE.json")]
+    pub(crate) targets: Option<PathBuf>,
 }

@@ -428,7 +428,11 @@ fn bench_cull_sweep_and_ideal_report_each_view_and_their_mean_and_worst() {
 #[test]
 fn bench_cull_reports_every_case_and_each_target_in_one_run() {
     let dir = tempfile::tempdir().unwrap();
-    let (o, r) = bench_cull(dir.path(), &[]);
+    let targets = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../benches/targets/cull.json"
+    );
+    let (o, r) = bench_cull(dir.path(), &["--targets", targets]);
     let cases = r["cases"].as_array().unwrap();
     for (mode, ranks, replicas) in [
         ("none", 1, 1),

@@ -33,6 +33,7 @@ pub mod comm;
 pub mod composite;
 pub mod cull;
 pub mod distribute;
+pub mod experiment;
 pub mod frame;
 pub mod io;
 pub mod pof;

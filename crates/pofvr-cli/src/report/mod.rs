@@ -1,6 +1,7 @@
 //! Writing an experiment report: CSV tables, SVG charts, PNG images and an `index.html`
 //! that shows them, every file written atomically and listed for the caller.
 
+pub(crate) mod experiment;
 pub(crate) mod plot;
 
 use std::fmt::Write as _;

@@ -198,7 +198,6 @@ pub(crate) fn stacked_bars(
     {
         let root = SVGBackend::with_string(&mut svg, (W, H)).into_drawing_area();
         root.fill(&WHITE).map_err(err)?;
-        #[allow(clippy::cast_possible_truncation, clippy::cast_possible_wrap)]
         let n_i = n as i32;
         let mut chart = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 20))
@@ -234,7 +233,6 @@ pub(crate) fn stacked_bars(
             let bars: Vec<Rectangle<(SegmentValue<i32>, f64)>> = (0..n)
                 .map(|i| {
                     let v = s.values.get(i).copied().unwrap_or(0.0).max(0.0);
-                    #[allow(clippy::cast_possible_truncation, clippy::cast_possible_wrap)]
                     let i32_ = i as i32;
                     let mut r = Rectangle::new(
                         [
