@@ -1,5 +1,5 @@
 //! `pofvr render` under `mpirun` (cargo feature `mpi`): one pofvr rank per MPI process,
-//! through [`pofvr_mpi::MpiCommunicator`] and `pofvr::frame::render_frame_on`. Every rank
+//! through [`pofvr_mpi::MpiCommunicator`] and `pofvr::Scene::render_on`. Every rank
 //! opens the volume memory-mapped and reads only the bricks it owns: it measures their value
 //! ranges (exchanged with the other ranks: culling needs every brick's) and ray-casts them,
 //! renders its share of each frame, and rank 0 writes the outputs and `--stats`, which gains
@@ -14,11 +14,10 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Result};
 use pofvr::brick::{BrickGrid, BrickId, BrickStore, ValueRange};
 use pofvr::comm::{Communicator, Rank};
-use pofvr::cull::OpacityBound;
 use pofvr::distribute::{BrickAssignment, Curve};
-use pofvr::frame::{render_frame_on, FrameOptions, FrameStats, RenderJob};
-use pofvr::render::{Camera, Image};
+use pofvr::frame::RenderJob;
 use pofvr::volume::Volume;
+use pofvr::{Frame, FrameRequest, Scene};
 use pofvr_mpi::MpiCommunicator;
 
 use super::render::{self, Backend, MemoryStatus};
@@ -41,19 +40,8 @@ impl Backend for Mpi<'_> {
         self.comm.rank() == Rank(0)
     }
 
-    fn frame(
-        &self,
-        job: &RenderJob,
-        bounds: Option<&dyn OpacityBound>,
-        camera: &Camera,
-        opts: &FrameOptions,
-    ) -> Result<Option<(Image, FrameStats)>> {
-        let opts = FrameOptions {
-            ranks: 1,
-            ..opts.clone()
-        };
-        let Some((image, mut stats)) = render_frame_on(self.comm, job, bounds, camera, &opts)?
-        else {
+    fn frame(&self, scene: &Scene, request: &FrameRequest<'_>) -> Result<Option<Frame>> {
+        let Some(Frame { image, mut stats }) = scene.render_on(self.comm, request)? else {
             return Ok(None);
         };
         // The communicator lives for the whole run, so its counts are cumulative; report
@@ -65,7 +53,7 @@ impl Backend for Mpi<'_> {
             r.bytes_sent = total.saturating_sub(*prev);
             *prev = total;
         }
-        Ok(Some((image, stats)))
+        Ok(Some(Frame { image, stats }))
     }
 
     fn grid(&self, volume: &Volume, brick_size: usize, curve: Curve) -> Result<BrickGrid> {
