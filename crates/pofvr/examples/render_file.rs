@@ -4,7 +4,8 @@
 //! cargo run --release -p pofvr --example render_file -- [VOLUME TF.json] [--pof FILE.pof] [--out OUT.png]
 //! ```
 //!
-//! Without a volume it renders the built-in head phantom with its family. POFs are loaded
+//! Without a volume it renders the built-in head phantom with its family, skin weighted
+//! up. POFs are loaded
 //! from `--pof` when given, otherwise built for the scene on the spot (a coarse view grid,
 //! to stay quick). Raw volumes need a header (NRRD, MetaImage, NIfTI).
 
@@ -44,10 +45,12 @@ fn args() -> Result<Args, String> {
 fn run(a: &Args) -> pofvr::Result<()> {
     let (volume, family) = match &a.input {
         Some((v, tf)) => (Volume::open(v, None)?, TransferFunction::from_file(tf)?),
-        None => (
-            Phantom::SheppLogan.generate(96),
-            families::for_phantom(Phantom::SheppLogan),
-        ),
+        None => {
+            // Skin weighted up, so that the brain hides much of what is behind it.
+            let mut family = families::for_phantom(Phantom::SheppLogan);
+            family.weights = vec![3.0, 1.0];
+            (Phantom::SheppLogan.generate(96), family)
+        }
     };
     let scene = Scene::builder(volume, family).brick_size(8).build()?;
     let scene = match &a.pof {
@@ -60,9 +63,9 @@ fn run(a: &Args) -> pofvr::Result<()> {
             scene.with_pofs(pofs)?
         }
     };
-    let camera = Camera::orbit(scene.volume(), 0.0, 0.0, 512, 512, Projection::Orthographic);
+    let camera = Camera::orbit(scene.volume(), 0.0, 0.0, 384, 384, Projection::Orthographic);
     let pofs = scene.pofs().expect("the scene was given POFs above");
-    let request = FrameRequest::new(&camera).shade(true).cull(Cull::Pof(pofs));
+    let request = FrameRequest::new(&camera).cull(Cull::Pof(pofs));
     let frame = scene.render(&request)?;
     frame.write_png(&a.out)?;
     let b = frame.stats.bricks;
