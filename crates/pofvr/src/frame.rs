@@ -2,7 +2,7 @@
 //!
 //! [`RenderJob`] bundles a scene with the weights and shading of its frames; the
 //! [`crate::Scene`] facade keeps the scene alone and passes those per frame. Both render
-//! through the same functions here, which take the weights and shading as a [`Look`].
+//! through the same functions here, which take the weights and shading as a `Look`.
 
 use std::time::{Duration, Instant};
 
