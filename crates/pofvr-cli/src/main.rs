@@ -24,7 +24,8 @@ fn main() {
 }
 
 /// The error and its causes, each cause once: many of our errors already print their
-/// source (`file: reason`), and the chain would repeat it.
+/// source (`file: reason`), and the chain would repeat it. A library error about a setting
+/// is prefixed with the flag that sets it.
 fn message(e: &anyhow::Error) -> String {
     let mut msg = String::new();
     for cause in e.chain() {
@@ -35,9 +36,50 @@ fn message(e: &anyhow::Error) -> String {
         if !msg.is_empty() {
             msg.push_str(": ");
         }
+        if let Some(flag) = flag_of(cause) {
+            msg.push_str(flag);
+            msg.push_str(": ");
+        }
         msg.push_str(&text);
     }
     msg
+}
+
+/// The flag of the setting a library error is about: the library names settings in words
+/// ([`pofvr::error::Setting`]), never by their flags.
+fn flag_of(cause: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
+    use pofvr::error::{OutOfRange, Setting};
+    use pofvr::frame::{FrameError, JobError};
+    use pofvr::pof::PofError;
+    // A POF file built for another step or threshold names the setting in `what`.
+    let mismatch = |e: &PofError| match e {
+        PofError::Mismatch { what, .. } => [Setting::Step, Setting::EarlyTermination]
+            .into_iter()
+            .find(|s| s.name() == *what),
+        _ => None,
+    };
+    let setting = if let Some(e) = cause.downcast_ref::<pofvr::Error>() {
+        match e {
+            pofvr::Error::OutOfRange(r) => Some(r.setting),
+            pofvr::Error::Pof(p) => mismatch(p),
+            _ => None,
+        }
+    } else if let Some(JobError::OutOfRange(r)) = cause.downcast_ref::<JobError>() {
+        Some(r.setting)
+    } else if let Some(FrameError::OutOfRange(r)) = cause.downcast_ref::<FrameError>() {
+        Some(r.setting)
+    } else if let Some(p) = cause.downcast_ref::<PofError>() {
+        mismatch(p)
+    } else {
+        cause.downcast_ref::<OutOfRange>().map(|r| r.setting)
+    }?;
+    match setting {
+        Setting::Step => Some("--step"),
+        Setting::EarlyTermination => Some("--ert"),
+        Setting::CullThreshold => Some("--cull-threshold"),
+        Setting::Ranks => Some("--ranks"),
+        _ => None,
+    }
 }
 
 fn run(cli: args::Cli) -> anyhow::Result<()> {

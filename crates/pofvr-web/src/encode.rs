@@ -34,7 +34,6 @@ pub fn footprints(
 /// Tinted pixels become opaque over black, the page's background, so the tint shows on
 /// empty space too and overlapping footprints do not darken each other.
 #[must_use]
-#[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
 pub fn rgba8_with_tint(image: &Image, tinted: &[PixelRect]) -> Vec<u8> {
     let mut rgba = image.to_rgba8();
     if tinted.is_empty() {

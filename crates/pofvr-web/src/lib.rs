@@ -2,9 +2,10 @@
 //!
 //! ## Brief overview
 //!
-//! [`Viewer`] holds one [`pofvr::frame::RenderJob`] (the opened volume, its bricks and the
-//! transfer-function family) and answers HTTP through [`router`]; [`serve`] binds it to a
-//! socket. The page is one HTML file with plain JS and CSS, compiled into the binary.
+//! [`Viewer`] holds one [`pofvr::Scene`] (the opened volume, its bricks, the
+//! transfer-function family and optional POFs), shared by `Arc` and rendered per request
+//! with that request's weights, shading and cull mode, and answers HTTP through [`router`];
+//! [`serve`] binds it to a socket. The page is one HTML file with plain JS and CSS, compiled into the binary.
 //!
 //! ## HTTP interface
 //!
@@ -47,11 +48,11 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 use glam::DVec3;
-use pofvr::frame::RenderJob;
 use pofvr::render::{Camera, Projection};
+use pofvr::Scene;
 use serde::Serialize;
 
-use frame_adapter::{CullMode, FrameOptions, FrameStats, Look, Pofs, SharedJob};
+use frame_adapter::{CullMode, FrameOptions, FrameStats, Look};
 use params::FrameParams;
 pub use scheduler::SchedulerStats;
 use scheduler::{Refusal, Scheduler};
@@ -100,10 +101,9 @@ impl Default for ViewerOptions {
     }
 }
 
-/// The state behind the server: one render job, its optional POFs and the scheduler.
+/// The state behind the server: one scene and the scheduler.
 pub struct Viewer {
-    job: SharedJob,
-    pofs: Option<Pofs>,
+    scene: Arc<Scene>,
     source: String,
     scheduler: Scheduler,
     defaults: FrameParams,
@@ -111,9 +111,9 @@ pub struct Viewer {
 }
 
 impl Viewer {
-    /// A viewer of `job`; `source` names the volume on the page.
+    /// A viewer of `scene`; `source` names the volume on the page.
     #[must_use]
-    pub fn new(job: RenderJob, pofs: Option<Pofs>, source: &str, options: &ViewerOptions) -> Self {
+    pub fn new(scene: Arc<Scene>, source: &str, options: &ViewerOptions) -> Self {
         let defaults = FrameParams {
             azimuth: 30.0,
             elevation: 20.0,
@@ -122,16 +122,12 @@ impl Viewer {
             height: 512,
             projection: Projection::Orthographic,
             look: Look {
-                weights: job.tf.weights.clone(),
-                shade: job.settings.shade,
+                weights: scene.default_weights().to_vec(),
+                shade: false,
             },
             // As `pofvr render`: POF culling when POFs are given, otherwise none.
             options: FrameOptions {
-                cull: if pofs.is_some() {
-                    CullMode::Pof
-                } else {
-                    CullMode::None
-                },
+                cull: scene.default_cull().mode(),
                 ranks: options.ranks.max(1),
                 ..FrameOptions::default()
             },
@@ -140,8 +136,7 @@ impl Viewer {
             seq: 0,
         };
         Viewer {
-            job: SharedJob::new(job),
-            pofs,
+            scene,
             source: source.to_string(),
             scheduler: Scheduler::new(options.render_slots, options.max_clients),
             defaults,
@@ -169,8 +164,14 @@ impl Viewer {
     pub fn cull_modes(&self) -> Vec<CullMode> {
         frame_adapter::CULL_MODES
             .into_iter()
-            .filter(|m| self.pofs.is_some() || !m.needs_pofs())
+            .filter(|m| self.scene.pofs().is_some() || !m.needs_pofs())
             .collect()
+    }
+
+    /// The scene every frame renders.
+    #[must_use]
+    pub fn scene(&self) -> &Arc<Scene> {
+        &self.scene
     }
 
     /// The scheduler's counters.
@@ -182,7 +183,7 @@ impl Viewer {
     /// The camera of a request: the orbit camera with the whole volume fitted, zoomed.
     fn camera(&self, p: &FrameParams) -> Camera {
         let mut cam = Camera::orbit(
-            &self.job.read().volume,
+            self.scene.volume(),
             p.azimuth,
             p.elevation,
             p.width,
@@ -366,18 +367,18 @@ struct Limits {
 }
 
 async fn info(State(v): State<Arc<Viewer>>) -> Response {
-    let job = v.job.read();
-    let range = job.grid.value_range();
+    let scene = &v.scene;
+    let range = scene.grid().value_range();
     let info = Info {
         volume: VolumeInfo {
             source: &v.source,
-            dims: job.volume.dims(),
-            spacing: job.volume.spacing(),
-            data_type: job.volume.data_type().name(),
+            dims: scene.volume().dims(),
+            spacing: scene.volume().spacing(),
+            data_type: scene.volume().data_type().name(),
             value_range: [range.min, range.max],
         },
-        bases: job
-            .tf
+        bases: scene
+            .family()
             .bases
             .iter()
             .zip(&v.defaults.look.weights)
@@ -387,13 +388,13 @@ async fn info(State(v): State<Arc<Viewer>>) -> Response {
             })
             .collect(),
         bricks: BrickInfo {
-            size: job.grid.brick_size(),
-            counts: job.grid.counts(),
-            total: job.grid.len(),
+            size: scene.grid().brick_size(),
+            counts: scene.grid().counts(),
+            total: scene.grid().len(),
         },
         cull_modes: frame_adapter::CULL_MODES.iter().map(|m| m.name()).collect(),
         cull_modes_available: v.cull_modes().iter().map(|m| m.name()).collect(),
-        pofs_loaded: v.pofs.is_some(),
+        pofs_loaded: scene.pofs().is_some(),
         defaults: Defaults {
             az: v.defaults.azimuth,
             el: v.defaults.elevation,
@@ -477,7 +478,7 @@ async fn frame(
         Ok(p) => p,
         Err(msg) => return text(StatusCode::BAD_REQUEST, msg),
     };
-    if p.options.cull.needs_pofs() && v.pofs.is_none() {
+    if p.options.cull.needs_pofs() && v.scene.pofs().is_none() {
         return text(
             StatusCode::BAD_REQUEST,
             format!(
@@ -570,14 +571,17 @@ async fn frame(
 /// Renders and encodes one frame: PNG bytes, the frame's figures and the encode time.
 fn render_png(v: &Viewer, p: &FrameParams) -> Result<(Vec<u8>, FrameStats, f64), String> {
     let cam = v.camera(p);
-    let (image, stats) = v
-        .job
-        .render(v.pofs.as_ref(), &cam, &p.options, &p.look)
-        .map_err(|e| e.to_string())?;
+    let pofvr::Frame { image, stats } =
+        frame_adapter::render(&v.scene, &cam, &p.options, &p.look).map_err(|e| e.to_string())?;
     let t = Instant::now();
     let tinted = if p.overlay {
-        let job = v.job.read();
-        encode::footprints(&job.grid, job.volume.spacing(), &cam, &stats.culled_bricks)
+        let scene = &v.scene;
+        encode::footprints(
+            scene.grid(),
+            scene.volume().spacing(),
+            &cam,
+            &stats.culled_bricks,
+        )
     } else {
         Vec::new()
     };

@@ -72,7 +72,6 @@ pub fn parse(pairs: &[(String, String)], defaults: &FrameParams) -> Result<Frame
                 }
             }
             "weights" => p.look.weights = weights(value, defaults.look.weights.len())?,
-            #[allow(clippy::cast_possible_truncation)]
             "threshold" => p.options.cull_threshold = number(key, value, (0.01, 1.0))? as f32,
             "cull" => p.options.cull = value.parse::<CullMode>().map_err(|e| format!("cull: {e}"))?,
             "shade" => p.look.shade = flag(key, value)?,
@@ -141,7 +140,6 @@ fn weights(value: &str, expected: usize) -> Result<Vec<f32>, String> {
         .enumerate()
         .map(|(i, s)| {
             let k = number(&format!("weights[{i}]"), s, (0.0, f64::from(MAX_WEIGHT)))?;
-            #[allow(clippy::cast_possible_truncation)]
             Ok(k as f32)
         })
         .collect()

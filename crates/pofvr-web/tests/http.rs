@@ -5,23 +5,19 @@ use std::time::{Duration, Instant};
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
-use pofvr::cull::range_bound::RangeBound;
-use pofvr::frame::RenderJob;
-use pofvr::render::{families, RenderSettings};
+use pofvr::render::families;
 use pofvr::volume::phantom::Phantom;
+use pofvr::Scene;
 use pofvr_web::{router, Viewer, ViewerOptions, STATS_HEADER, SUPERSEDED_HEADER};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tower::ServiceExt;
 
-fn job(n: usize) -> RenderJob {
+fn scene(n: usize) -> Scene {
     let vol = Phantom::SheppLogan.generate(n);
-    RenderJob::new(
-        vol,
-        families::for_phantom(Phantom::SheppLogan),
-        16,
-        RenderSettings::default(),
-    )
-    .unwrap()
+    Scene::builder(vol, families::for_phantom(Phantom::SheppLogan))
+        .brick_size(16)
+        .build()
+        .unwrap()
 }
 
 fn viewer(n: usize, render_slots: usize) -> Arc<Viewer> {
@@ -29,16 +25,13 @@ fn viewer(n: usize, render_slots: usize) -> Arc<Viewer> {
         render_slots,
         ..ViewerOptions::default()
     };
-    Arc::new(Viewer::new(job(n), None, "phantom:head", &opts))
+    Arc::new(Viewer::new(Arc::new(scene(n)), "phantom:head", &opts))
 }
 
 /// A viewer whose POF modes read the library's range bound, which needs no POF file.
 fn viewer_with_bounds(n: usize) -> Arc<Viewer> {
-    let j = job(n);
-    let bound = RangeBound::new(&j.grid, &j.sampled, j.settings.step, j.settings.ert, 4.0);
     Arc::new(Viewer::new(
-        j,
-        Some(Box::new(bound)),
+        Arc::new(scene(n).with_range_bound(4.0)),
         "phantom:head",
         &ViewerOptions::default(),
     ))
@@ -195,7 +188,7 @@ async fn only_loopback_host_names_are_answered() {
         loopback_hosts_only: false,
         ..ViewerOptions::default()
     };
-    let open = Arc::new(Viewer::new(job(16), None, "phantom:head", &opts));
+    let open = Arc::new(Viewer::new(Arc::new(scene(16)), "phantom:head", &opts));
     let req = Request::get("/api/info")
         .header("host", "viewer.lan")
         .body(Body::empty())
@@ -279,7 +272,7 @@ async fn ranks_split_the_frame_without_changing_it() {
         ranks: 3,
         ..ViewerOptions::default()
     };
-    let three = Arc::new(Viewer::new(job(32), None, "phantom:head", &opts));
+    let three = Arc::new(Viewer::new(Arc::new(scene(32)), "phantom:head", &opts));
     let q = "/api/frame?w=48&h=40&az=20&el=10&cull=exact";
     let (a, b) = (get(&one, q).await, get(&three, q).await);
     assert_eq!(

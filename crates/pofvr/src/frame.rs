@@ -1,4 +1,8 @@
 //! `render_frame`: the one place where the stages are chained.
+//!
+//! [`RenderJob`] bundles a scene with the weights and shading of its frames; the
+//! [`crate::Scene`] facade keeps the scene alone and passes those per frame. Both render
+//! through the same functions here, which take the weights and shading as a `Look`.
 
 use std::time::{Duration, Instant};
 
@@ -10,6 +14,7 @@ use crate::comm::{CommError, Communicator, LocalCommunicator, Rank};
 use crate::composite::{CompositeError, Compositor, DirectSend, TileFragment, TileLayout};
 use crate::cull::{CoreLevels, CullMode, Culler, FrameBricks, OpacityBound};
 use crate::distribute::{BrickAssignment, Curve, DistributeError};
+use crate::error::{OutOfRange, Setting, Value};
 use crate::pof::{PofError, PofTable};
 use crate::render::{
     Camera, Image, RayCaster, RayStats, RenderSettings, SampledTf, TfError, TransferFunction,
@@ -58,19 +63,21 @@ pub struct RenderJob {
     assignment_cache: std::sync::Mutex<Option<CachedAssignment>>,
 }
 
-/// Validated before the volume is scanned, so a bad flag fails fast.
-fn check_settings(settings: &RenderSettings) -> Result<(), JobError> {
+/// Validated before the volume is scanned, so a bad setting fails fast.
+pub(crate) fn check_settings(settings: &RenderSettings) -> Result<(), OutOfRange> {
     if !(settings.step.is_finite() && settings.step > 1e-3 && settings.step <= 64.0) {
-        return Err(JobError::Setting(format!(
-            "--step {} must be in (0.001, 64]",
-            settings.step
-        )));
+        return Err(OutOfRange {
+            setting: Setting::Step,
+            got: Value::Real(settings.step),
+            expected: "a value in (0.001, 64]",
+        });
     }
     if !(settings.ert > 0.0 && settings.ert.is_finite()) {
-        return Err(JobError::Setting(format!(
-            "--ert {} must be > 0 (≥ 1 disables it)",
-            settings.ert
-        )));
+        return Err(OutOfRange {
+            setting: Setting::EarlyTermination,
+            got: Value::Real(settings.ert),
+            expected: "a value > 0 (≥ 1 disables it)",
+        });
     }
     Ok(())
 }
@@ -85,9 +92,17 @@ pub enum JobError {
     /// Bad transfer function or weights.
     #[error(transparent)]
     Tf(#[from] TfError),
-    /// Bad setting.
-    #[error("{0}")]
-    Setting(String),
+    /// A step or early-termination threshold out of range.
+    #[error(transparent)]
+    OutOfRange(#[from] OutOfRange),
+    /// A brick grid measured on a volume of other dimensions.
+    #[error("brick grid cut from a {got:?} volume, expected {expected:?}")]
+    GridMismatch {
+        /// The dimensions the grid was cut from.
+        got: [usize; 3],
+        /// The volume's dimensions.
+        expected: [usize; 3],
+    },
 }
 
 impl RenderJob {
@@ -196,7 +211,8 @@ impl RenderJob {
     /// in pieces by several ranks.
     ///
     /// # Errors
-    /// [`JobError::Setting`] for a bad step or threshold, or a grid cut from other dims.
+    /// [`JobError::OutOfRange`] for a bad step or threshold, [`JobError::GridMismatch`] for a
+    /// grid cut from other dims.
     pub fn with_grid(
         volume: Volume,
         tf: TransferFunction,
@@ -205,11 +221,10 @@ impl RenderJob {
     ) -> Result<Self, JobError> {
         check_settings(&settings)?;
         if grid.volume_dims() != volume.dims() {
-            return Err(JobError::Setting(format!(
-                "brick grid cut from a {:?} volume, not {:?}",
-                grid.volume_dims(),
-                volume.dims()
-            )));
+            return Err(JobError::GridMismatch {
+                got: grid.volume_dims(),
+                expected: volume.dims(),
+            });
         }
         let sampled = SampledTf::new(&tf, grid.value_range());
         Ok(RenderJob {
@@ -230,41 +245,14 @@ impl RenderJob {
     /// # Errors
     /// [`PofError`] naming the file and what differs.
     pub fn load_pofs(&self, path: &std::path::Path) -> Result<PofTable, PofError> {
-        let table = PofTable::load(path, &self.volume, &self.grid, &self.tf)?;
-        self.check_sampling(path, table)
-    }
-
-    /// The table's step and early-termination threshold must be the renderer's.
-    fn check_sampling(
-        &self,
-        path: &std::path::Path,
-        table: PofTable,
-    ) -> Result<PofTable, PofError> {
-        let file = path.display().to_string();
-        if table.step() != self.settings.step {
-            return Err(PofError::Mismatch {
-                file,
-                what: "sample step (--step)",
-                in_file: table.step().to_string(),
-                expected: self.settings.step.to_string(),
-            });
-        }
-        if table.ert() != self.settings.ert {
-            return Err(PofError::Mismatch {
-                file,
-                what: "early-termination threshold (--ert)",
-                in_file: table.ert().to_string(),
-                expected: self.settings.ert.to_string(),
-            });
-        }
-        Ok(table)
+        crate::scene::pofs::load_table(self, path)
     }
 
     /// Loads `first` and further levels of it built with other core lengths
     /// ([`CoreLevels`]), each checked as [`RenderJob::load_pofs`] does.
     ///
-    /// Tables may also be built for sub-bricks of the render bricks (`pof build --brick 8`
-    /// for `--brick 16`), all of one brick size: each visible brick then gets the bounds
+    /// Tables may also be built for sub-bricks of the render bricks (brick size 8 for
+    /// render bricks of 16), all of one brick size: each visible brick then gets the bounds
     /// of its sub-bricks, and where there are tables for the render bricks too, the higher
     /// of the two at each pixel.
     ///
@@ -276,54 +264,7 @@ impl RenderJob {
         first: &std::path::Path,
         more: &[std::path::PathBuf],
     ) -> Result<CoreLevels, PofError> {
-        let render = self.grid.brick_size();
-        let mut own = Vec::new();
-        let mut sub: Vec<PofTable> = Vec::new();
-        let mut fine: Option<BrickGrid> = None;
-        for path in std::iter::once(first).chain(more.iter().map(std::path::PathBuf::as_path)) {
-            // Opened (mapped and CRC-checked) once, then matched to the grid its size says.
-            let table = PofTable::open(path)?;
-            let size = table.meta().brick_size as usize;
-            if size == render || size < 2 || !render.is_multiple_of(size) {
-                // The render grid's own, or a mismatch that `check_matches` names.
-                table.check_matches(&self.volume, &self.grid, &self.tf)?;
-                own.push(self.check_sampling(path, table)?);
-                continue;
-            }
-            if let Some(g) = &fine {
-                if g.brick_size() != size {
-                    return Err(PofError::Mismatch {
-                        file: path.display().to_string(),
-                        what: "sub-brick size (every sub-brick table needs the same)",
-                        in_file: size.to_string(),
-                        expected: g.brick_size().to_string(),
-                    });
-                }
-            } else {
-                fine = Some(BrickGrid::from_volume(&self.volume, size).map_err(|e| {
-                    PofError::Setting {
-                        field: "brick_size",
-                        why: e.to_string(),
-                    }
-                })?);
-            }
-            let grid = fine.as_ref().expect("made above");
-            table.check_matches(&self.volume, grid, &self.tf)?;
-            sub.push(self.check_sampling(path, table)?);
-        }
-        let levels = |tables| {
-            CoreLevels::new(tables).map_err(|why| PofError::Setting {
-                field: "core_length",
-                why,
-            })
-        };
-        let sub = levels(sub)?.map(|l| l.with_grid(fine.expect("sub-brick tables have a grid")));
-        Ok(match (levels(own)?, sub) {
-            (Some(own), Some(sub)) => own.with_sub_bricks(sub),
-            (Some(own), None) => own,
-            (None, Some(sub)) => sub,
-            (None, None) => unreachable!("at least the first table"),
-        })
+        crate::scene::pofs::load_levels(self, first, more)
     }
 
     /// Number of bricks that are empty for the current weights.
@@ -435,11 +376,14 @@ impl Default for FrameOptions {
 #[non_exhaustive]
 pub enum FrameError {
     /// A POF mode without POFs.
-    #[error("--cull {0} needs precomputed POFs (--pof FILE.pof, built by `pofvr pof build`)")]
-    NoPofs(&'static str),
-    /// Bad option.
-    #[error("{0}")]
-    Option(String),
+    #[error("cull mode {} needs precomputed POFs (built by `pofvr pof build`)", .0.name())]
+    NoPofs(CullMode),
+    /// A threshold or rank count out of range.
+    #[error(transparent)]
+    OutOfRange(#[from] OutOfRange),
+    /// The ranks' statistics could not be gathered into the frame.
+    #[error("frame gather: {0}")]
+    Gather(String),
     /// Bricks could not be dealt to ranks.
     #[error(transparent)]
     Distribute(#[from] DistributeError),
@@ -465,7 +409,6 @@ impl FrameError {
 
 impl FrameStats {
     fn from_rays(st: RayStats, seconds: f64) -> Self {
-        #[allow(clippy::cast_precision_loss)]
         let sps = if seconds > 0.0 {
             st.samples as f64 / seconds
         } else {
@@ -482,12 +425,45 @@ impl FrameStats {
     }
 }
 
+/// What a frame reads besides the scene and the camera: the basis weights and whether to
+/// shade.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Look<'a> {
+    /// One weight per basis, validated against the family.
+    pub(crate) weights: &'a [f32],
+    /// Gradient shading.
+    pub(crate) shade: bool,
+}
+
+impl RenderJob {
+    /// The job's own weights and shading, which [`render_frame`] renders with.
+    fn look(&self) -> Look<'_> {
+        Look {
+            weights: &self.tf.weights,
+            shade: self.settings.shade,
+        }
+    }
+}
+
 /// Renders the whole volume with the reference ray caster (no bricks, no culling).
 #[must_use]
 pub fn render_reference(job: &RenderJob, camera: &Camera) -> (Image, FrameStats) {
+    reference_with(job, job.look(), camera)
+}
+
+/// [`render_reference`] with `look` in place of the job's weights and shading.
+pub(crate) fn reference_with(
+    job: &RenderJob,
+    look: Look<'_>,
+    camera: &Camera,
+) -> (Image, FrameStats) {
     let start = Instant::now();
-    let cls = job.sampled.classify(&job.tf.weights, job.settings.step);
-    let (image, st) = RayCaster::new(&job.volume, &cls, job.settings).render(camera);
+    let cls = job.sampled.classify(look.weights, job.settings.step);
+    let settings = RenderSettings {
+        shade: look.shade,
+        ..job.settings
+    };
+    let (image, st) = RayCaster::new(&job.volume, &cls, settings).render(camera);
     (
         image,
         FrameStats::from_rays(st, start.elapsed().as_secs_f64()),
@@ -505,15 +481,26 @@ pub fn render_frame(
     camera: &Camera,
     opts: &FrameOptions,
 ) -> Result<(Image, FrameStats), FrameError> {
+    frame_with(job, job.look(), bounds, camera, opts)
+}
+
+/// [`render_frame`] with `look` in place of the job's weights and shading.
+pub(crate) fn frame_with(
+    job: &RenderJob,
+    look: Look<'_>,
+    bounds: Option<&dyn OpacityBound>,
+    camera: &Camera,
+    opts: &FrameOptions,
+) -> Result<(Image, FrameStats), FrameError> {
     check_options(bounds, opts)?;
     let mut results = LocalCommunicator::run(opts.ranks.max(1), |comm| {
-        render_frame_on(comm, job, bounds, camera, opts)
+        frame_on_with(comm, job, look, bounds, camera, opts)
     });
     // Report rank 0's error first: it holds the frame; others may only have seen the abort.
     let first = results.remove(0);
     match first {
         Ok(Some(frame)) => Ok(frame),
-        Ok(None) => Err(FrameError::Option("rank 0 returned no frame".into())),
+        Ok(None) => Err(FrameError::Gather("rank 0 returned no frame".into())),
         Err(e) => Err(results
             .into_iter()
             .find_map(|r| r.err().filter(|e| !e.is_abort()))
@@ -523,22 +510,29 @@ pub fn render_frame(
 
 fn check_options(bounds: Option<&dyn OpacityBound>, opts: &FrameOptions) -> Result<(), FrameError> {
     if opts.cull.needs_pofs() && bounds.is_none() {
-        return Err(FrameError::NoPofs(opts.cull.name()));
+        return Err(FrameError::NoPofs(opts.cull));
     }
     if !(opts.cull_threshold > 0.0 && opts.cull_threshold <= 1.0) {
-        return Err(FrameError::Option(format!(
-            "--cull-threshold {} must be in (0, 1]",
-            opts.cull_threshold
-        )));
+        return Err(OutOfRange {
+            setting: Setting::CullThreshold,
+            got: Value::Real(opts.cull_threshold),
+            expected: "a value in (0, 1]",
+        }
+        .into());
     }
-    if !(1..=4096).contains(&opts.ranks) {
-        return Err(FrameError::Option(format!(
-            "--ranks {} must be in 1..=4096",
-            opts.ranks
-        )));
+    if !(1..=MAX_RANKS).contains(&opts.ranks) {
+        return Err(OutOfRange {
+            setting: Setting::Ranks,
+            got: Value::Count(opts.ranks),
+            expected: "a count in 1..=4096",
+        }
+        .into());
     }
     Ok(())
 }
+
+/// Most in-process ranks of a frame.
+const MAX_RANKS: usize = 4096;
 
 /// An estimate of the samples ray casting brick `b` takes, the same on every rank (it reads
 /// only what every rank holds), by which replicas share the visible bricks: its voxels
@@ -547,9 +541,8 @@ fn check_options(bounds: Option<&dyn OpacityBound>, opts: &FrameOptions) -> Resu
 /// the brick's bound guarantees along `dir` (`−ln(1 − α)` over the core length `L`).
 ///
 /// Why not the footprint's area: a dense brick stops its rays within a few samples, so
-/// the area over-counts it. Over 24 views of `ch2better_mri` at 32 ranks with two
-/// replicas, the busiest rank came within 1.131 of the mean with this estimate (1.083 on
-/// average) against 1.179 (1.088) with the area.
+/// the area over-counts it, and the ranks given the dense bricks would be left short of
+/// work.
 fn render_cost(
     job: &RenderJob,
     bounds: Option<&dyn OpacityBound>,
@@ -566,13 +559,10 @@ fn render_cost(
             return 1.0;
         }
         let to_ert = -(1.0 - f64::from(job.settings.ert).min(0.999_999)).ln() / rate;
-        #[allow(clippy::cast_precision_loss)]
         let edge = job.grid.brick_size() as f64;
         (to_ert / edge).min(1.0)
     });
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-    let c = (voxels * share * 64.0).round() as u64;
-    c
+    (voxels * share * 64.0).round() as u64
 }
 
 /// Timeout of each exchange of a frame: generous, it only turns a lost peer into an error.
@@ -592,7 +582,19 @@ pub fn render_frame_on(
     camera: &Camera,
     opts: &FrameOptions,
 ) -> Result<Option<(Image, FrameStats)>, FrameError> {
-    let result = rank_frame(comm, job, bounds, camera, opts);
+    frame_on_with(comm, job, job.look(), bounds, camera, opts)
+}
+
+/// [`render_frame_on`] with `look` in place of the job's weights and shading.
+pub(crate) fn frame_on_with(
+    comm: &dyn Communicator,
+    job: &RenderJob,
+    look: Look<'_>,
+    bounds: Option<&dyn OpacityBound>,
+    camera: &Camera,
+    opts: &FrameOptions,
+) -> Result<Option<(Image, FrameStats)>, FrameError> {
+    let result = rank_frame(comm, job, look, bounds, camera, opts);
     if let Err(e) = &result {
         if !e.is_abort() {
             comm.abort(&e.to_string());
@@ -601,10 +603,10 @@ pub fn render_frame_on(
     result
 }
 
-#[allow(clippy::too_many_lines)]
 fn rank_frame(
     comm: &dyn Communicator,
     job: &RenderJob,
+    look: Look<'_>,
     bounds: Option<&dyn OpacityBound>,
     camera: &Camera,
     opts: &FrameOptions,
@@ -612,9 +614,13 @@ fn rank_frame(
     check_options(bounds, opts)?;
     let start = Instant::now();
     let me = comm.rank();
-    let weights = &job.tf.weights;
+    let weights = look.weights;
     let cls = job.sampled.classify(weights, job.settings.step);
-    let caster = RayCaster::new(&job.volume, &cls, job.settings);
+    let settings = RenderSettings {
+        shade: look.shade,
+        ..job.settings
+    };
+    let caster = RayCaster::new(&job.volume, &cls, settings);
     let bricks = FrameBricks::new(&job.volume, &job.grid, &job.sampled, weights, camera);
     let assignment = job.assignment(opts.curve, comm.size(), opts.replicas)?;
 
@@ -753,7 +759,7 @@ fn rank_frame(
         .iter()
         .map(|b| serde_json::from_slice(b))
         .collect::<Result<_, _>>()
-        .map_err(|e| FrameError::Option(format!("rank stats: {e}")))?;
+        .map_err(|e| FrameError::Gather(format!("rank stats: {e}")))?;
     ranks[0] = rank;
     let total = RayStats {
         rays: ranks.iter().map(|r| r.rays).sum(),

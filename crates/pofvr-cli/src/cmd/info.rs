@@ -1,8 +1,8 @@
 use anyhow::Result;
 use pofvr::brick::BrickGrid;
-use pofvr::render::{families, SampledTf};
+use pofvr::render::families;
 use pofvr::volume::Voxel;
-use pofvr::with_voxels;
+use pofvr::{with_voxels, Scene};
 
 use crate::args::InfoArgs;
 use crate::progress::Ui;
@@ -18,7 +18,6 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
     let width = (range.max - range.min).max(f32::MIN_POSITIVE);
     with_voxels!(vol.data(), v => {
         for x in v {
-            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
             let b = (((x.to_f32() - range.min) / width * 16.0) as usize).min(15);
             hist[b] += 1;
         }
@@ -29,14 +28,15 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
         Some(tf) => ("given", tf),
         None => ("automatic ramp", families::auto_ramp(range)),
     };
-    let sampled = SampledTf::new(&tf, range);
-    let empty = grid
-        .ranges()
-        .iter()
-        .filter(|r| sampled.is_empty(**r, &tf.weights))
-        .count();
+    let scene = Scene::builder(vol, tf).grid(grid).build()?;
+    let (vol, grid, sampled, weights) = (
+        scene.volume(),
+        scene.grid(),
+        scene.sampled(),
+        scene.default_weights(),
+    );
+    let empty = scene.empty_bricks(weights)?;
     let total: u64 = hist.iter().sum();
-    #[allow(clippy::cast_precision_loss)]
     let hist_json: Vec<serde_json::Value> = hist
         .iter()
         .enumerate()
@@ -55,7 +55,7 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
         "histogram": hist_json,
         "brick_size": grid.brick_size(),
         "bricks": {"counts": grid.counts(), "total": grid.len(), "empty": empty, "non_empty": grid.len() - empty},
-        "tf": {"kind": tf_name, "bases": sampled.names(), "weights": tf.weights},
+        "tf": {"kind": tf_name, "bases": sampled.names(), "weights": weights},
     });
     if a.json {
         println!("{}", serde_json::to_string_pretty(&info)?);
@@ -83,11 +83,9 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
     println!("spacing    {} × {} × {}", s[0], s[1], s[2]);
     println!("range      {} .. {}", range.min, range.max);
     println!("histogram  (16 bins over the range, % of voxels)");
-    #[allow(clippy::cast_precision_loss)]
     for (i, c) in hist.iter().enumerate() {
         let lo = range.min + width * i as f32 / 16.0;
         let pct = 100.0 * *c as f64 / total.max(1) as f64;
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         let bar = "#".repeat((pct / 2.0).ceil() as usize);
         println!("  {lo:>12.3}  {pct:>6.2}%  {bar}");
     }
@@ -106,7 +104,7 @@ pub(crate) fn run(a: &InfoArgs, ui: &Ui) -> Result<()> {
         grid.len(),
         tf_name,
         sampled.names().join(", "),
-        tf.weights
+        weights
     );
     Ok(())
 }

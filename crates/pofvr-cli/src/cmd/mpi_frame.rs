@@ -13,12 +13,11 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Result};
 use pofvr::brick::BrickGrid;
 use pofvr::comm::{Communicator, Rank};
-use pofvr::cull::OpacityBound;
 use pofvr::distribute::setup::DistributedRank;
 use pofvr::distribute::Curve;
-use pofvr::frame::{FrameOptions, FrameStats, RenderJob};
-use pofvr::render::{Camera, Image};
+use pofvr::frame::RenderJob;
 use pofvr::volume::Volume;
+use pofvr::{Frame, FrameRequest, Scene};
 use pofvr_mpi::MpiCommunicator;
 
 use super::render::{self, Backend, MemoryStatus};
@@ -36,14 +35,8 @@ impl Backend for Mpi<'_> {
         self.0.comm().rank() == Rank(0)
     }
 
-    fn frame(
-        &self,
-        job: &RenderJob,
-        bounds: Option<&dyn OpacityBound>,
-        camera: &Camera,
-        opts: &FrameOptions,
-    ) -> Result<Option<(Image, FrameStats)>> {
-        Ok(self.0.frame(job, bounds, camera, opts)?)
+    fn frame(&self, scene: &Scene, request: &FrameRequest<'_>) -> Result<Option<Frame>> {
+        Ok(self.0.render(scene, request)?)
     }
 
     fn grid(&self, volume: &Volume, brick_size: usize, curve: Curve) -> Result<BrickGrid> {

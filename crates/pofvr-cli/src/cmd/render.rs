@@ -1,13 +1,13 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use pofvr::brick::BrickGrid;
-use pofvr::cull::{CullMode, OpacityBound};
 use pofvr::distribute::Curve;
-use pofvr::frame::{render_frame, render_reference, FrameOptions, FrameStats, RenderJob};
+use pofvr::frame::{FrameStats, RenderJob};
 use pofvr::render::{Camera, Image};
 use pofvr::volume::Volume;
+use pofvr::{CullMode, Frame, FrameRequest, Pofs, Scene};
 
 use crate::args::RenderArgs;
 use crate::progress::Ui;
@@ -20,13 +20,7 @@ pub(crate) trait Backend {
     fn is_root(&self) -> bool;
 
     /// One frame; `Some` on the root only.
-    fn frame(
-        &self,
-        job: &RenderJob,
-        bounds: Option<&dyn OpacityBound>,
-        camera: &Camera,
-        opts: &FrameOptions,
-    ) -> Result<Option<(Image, FrameStats)>>;
+    fn frame(&self, scene: &Scene, request: &FrameRequest<'_>) -> Result<Option<Frame>>;
 
     /// The volume's brick grid with every brick's value range. A distributed backend
     /// measures each rank's own bricks and exchanges the ranges, so that no rank reads
@@ -35,8 +29,8 @@ pub(crate) trait Backend {
         Ok(BrickGrid::from_volume(volume, brick_size)?)
     }
 
-    /// Called once the job is made, before the first frame: a distributed backend keeps
-    /// private copies of its own bricks and lets the volume's mapped pages go.
+    /// Called once the job is made, before it becomes the scene: a distributed backend
+    /// keeps private copies of its own bricks and lets the volume's mapped pages go.
     fn prepare(&self, _job: &mut RenderJob, _curve: Curve, _replicas: usize) -> Result<()> {
         Ok(())
     }
@@ -53,14 +47,8 @@ impl Backend for InProcess {
         true
     }
 
-    fn frame(
-        &self,
-        job: &RenderJob,
-        bounds: Option<&dyn OpacityBound>,
-        camera: &Camera,
-        opts: &FrameOptions,
-    ) -> Result<Option<(Image, FrameStats)>> {
-        Ok(Some(render_frame(job, bounds, camera, opts)?))
+    fn frame(&self, scene: &Scene, request: &FrameRequest<'_>) -> Result<Option<Frame>> {
+        Ok(Some(scene.render(request)?))
     }
 
     fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>> {
@@ -126,7 +114,6 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
 }
 
 /// `pofvr render` over any backend: every rank runs this; only the root writes.
-#[allow(clippy::too_many_lines)]
 pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result<()> {
     let t0 = Instant::now();
     if a.frames == 0 {
@@ -150,10 +137,10 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     let grid = backend.grid(&vol, a.volume.brick, curve)?;
     let mut job = RenderJob::with_grid(vol, tf, grid, resolve::settings(&a.view))?;
     backend.prepare(&mut job, curve, a.frame.replicas)?;
-    let job = job;
+    let mut scene = Scene::from_job(job)?;
     sp.set_message("rendering");
-    let mut pofs = None;
-    let opts = if a.frame.whole {
+    // `None`: the whole volume in one pass (--whole).
+    let mode = if a.frame.whole {
         None
     } else {
         let cull: CullMode = match (&a.frame.cull, &a.frame.pof) {
@@ -164,31 +151,41 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             (None, None) => CullMode::None,
         };
         if let Some(p) = &a.frame.pof {
-            pofs = Some(job.load_pof_levels(p, &a.frame.pof_level)?);
+            scene = scene.load_pof_levels(p, &a.frame.pof_level)?;
         }
-        if cull == CullMode::PofSet && !pofs.as_ref().is_some_and(pofvr::cull::CoreLevels::has_sets)
-        {
+        if cull == CullMode::PofSet && !scene.pofs().is_some_and(Pofs::has_sets) {
             bail!("--cull pof-set needs a POF file built with --sets");
         }
-        Some(FrameOptions {
-            cull,
-            cull_threshold: a.frame.cull_threshold,
-            ranks: a.frame.ranks,
-            curve,
-            replicas: a.frame.replicas,
-        })
+        Some(cull)
     };
-    let bounds = pofs.as_ref().map(|t| t as &dyn OpacityBound);
+    let scene = scene;
+    let cull = match mode {
+        Some(m) => Some(scene.cull(m).ok_or_else(|| {
+            anyhow!(
+                "--cull {} needs precomputed POFs (--pof FILE.pof, built by `pofvr pof build`)",
+                m.name()
+            )
+        })?),
+        None => None,
+    };
     let mut all = Vec::with_capacity(a.frames);
     for i in 0..a.frames {
-        #[allow(clippy::cast_precision_loss)]
         let cam_i = orbited(&cam, a.orbit * i as f64);
-        let frame = match &opts {
-            None if backend.is_root() => Some(render_reference(&job, &cam_i)),
+        let request = FrameRequest::new(&cam_i).shade(a.view.shade);
+        let frame = match cull {
+            None if backend.is_root() => Some(scene.render_reference(&request)?),
             None => None,
-            Some(opts) => backend.frame(&job, bounds, &cam_i, opts)?,
+            Some(cull) => backend.frame(
+                &scene,
+                &request
+                    .cull(cull)
+                    .threshold(a.frame.cull_threshold)
+                    .ranks(a.frame.ranks)
+                    .curve(curve)
+                    .replicas(a.frame.replicas),
+            )?,
         };
-        let Some((image, stats)) = frame else {
+        let Some(Frame { image, stats }) = frame else {
             continue;
         };
         let name = |p: &Path| frame_path(p, i, a.frames);

@@ -2,12 +2,12 @@
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
 use clap::Args;
-use pofvr::frame::RenderJob;
-use pofvr::render::RenderSettings;
-use pofvr_web::{frame_adapter, ServeConfig, Viewer, ViewerOptions};
+use pofvr::Scene;
+use pofvr_web::{ServeConfig, Viewer, ViewerOptions};
 
 use crate::args::{TfArgs, VolumeArgs};
 use crate::progress::Ui;
@@ -44,13 +44,10 @@ pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
     let sp = ui.spinner("opening and bricking the volume");
     let vol = resolve::volume(&a.volume)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
-    let job = RenderJob::new(vol, tf, a.volume.brick, RenderSettings::default())?;
-    let pofs = a
-        .pof
-        .as_deref()
-        .map(|p| frame_adapter::load_pof_levels(p, &a.pof_level, &job))
-        .transpose()
-        .map_err(|e| anyhow!(e))?;
+    let mut scene = Scene::builder(vol, tf).brick_size(a.volume.brick).build()?;
+    if let Some(p) = &a.pof {
+        scene = scene.load_pof_levels(p, &a.pof_level)?;
+    }
     sp.finish_and_clear();
     if !a.bind.is_loopback() {
         eprintln!(
@@ -63,7 +60,7 @@ pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
         ranks: usize::from(a.ranks),
         ..ViewerOptions::default()
     };
-    let viewer = Viewer::new(job, pofs, &a.volume.volume, &opts);
+    let viewer = Viewer::new(Arc::new(scene), &a.volume.volume, &opts);
     pofvr_web::serve_blocking(ServeConfig {
         viewer,
         addr: SocketAddr::new(a.bind, a.port),

@@ -18,6 +18,7 @@ use crate::distribute::{BrickAssignment, Curve, DistributeError};
 use crate::frame::{render_frame_on, FrameError, FrameOptions, FrameStats, RenderJob};
 use crate::render::{Camera, Image};
 use crate::volume::Volume;
+use crate::{Frame, FrameRequest, Scene};
 
 /// Bound on the exchange of brick ranges: generous, it only turns a lost rank into an error.
 const EXCHANGE_TIMEOUT: Duration = Duration::from_secs(120);
@@ -174,6 +175,31 @@ impl<'c> DistributedRank<'c> {
         else {
             return Ok(None);
         };
+        self.per_frame_bytes(&mut stats);
+        Ok(Some((image, stats)))
+    }
+
+    /// [`DistributedRank::frame`] for a [`Scene`]: this rank's part of `request`'s frame
+    /// (its rank count is the communicator's), the root returning the frame, with each
+    /// rank's `bytes_sent` counted per frame.
+    ///
+    /// # Errors
+    /// [`crate::Error`] as [`Scene::render_on`].
+    pub fn render(
+        &self,
+        scene: &Scene,
+        request: &FrameRequest<'_>,
+    ) -> crate::Result<Option<Frame>> {
+        let Some(mut frame) = scene.render_on(self.comm, request)? else {
+            return Ok(None);
+        };
+        self.per_frame_bytes(&mut frame.stats);
+        Ok(Some(frame))
+    }
+
+    /// Turns the communicator's cumulative byte counts into this frame's: what each rank
+    /// sent since its count in the previous frame's statistics.
+    fn per_frame_bytes(&self, stats: &mut FrameStats) {
         let mut before = self
             .sent_before
             .lock()
@@ -184,7 +210,6 @@ impl<'c> DistributedRank<'c> {
             r.bytes_sent = total.saturating_sub(*prev);
             *prev = total;
         }
-        Ok(Some((image, stats)))
     }
 }
 

@@ -52,7 +52,7 @@ pub fn one_core_per_rank(
     let first = results.remove(0);
     let frame = match first {
         Ok(Some(frame)) => frame,
-        Ok(None) => return Err(FrameError::Option("rank 0 returned no frame".into()).into()),
+        Ok(None) => return Err(FrameError::Gather("rank 0 returned no frame".into()).into()),
         Err(e) => {
             return Err(results
                 .into_iter()

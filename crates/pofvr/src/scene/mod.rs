@@ -1,0 +1,349 @@
+//! The facade: a [`Scene`] (what every frame shares) rendered per [`FrameRequest`] (what
+//! changes from frame to frame) into a [`Frame`].
+//!
+//! A scene is immutable once built: the volume, its bricks, the transfer-function family
+//! (its weights are only the default), the sampling settings, optional POFs and the brick
+//! deal cache. It is `Send + Sync`, so one `Arc<Scene>` serves any number of threads, each
+//! rendering with its own camera, weights, shading and cull mode.
+
+mod builder;
+mod output;
+pub(crate) mod pofs;
+mod request;
+#[cfg(test)]
+mod test;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+pub use builder::SceneBuilder;
+pub use output::Frame;
+pub use pofs::{PofBuild, Pofs};
+pub use request::{Cull, FrameRequest};
+
+use crate::brick::BrickGrid;
+use crate::comm::Communicator;
+use crate::cull::range_bound::RangeBound;
+use crate::cull::{CullMode, OpacityBound};
+use crate::distribute::{BrickAssignment, Curve};
+use crate::error::{Error, Result};
+use crate::frame::{self, FrameOptions, Look, RenderJob};
+use crate::pof::PofTable;
+use crate::render::{SampledTf, TransferFunction};
+use crate::volume::Volume;
+
+/// One volume ready to render: see the [module](self) and [`Scene::builder`].
+pub struct Scene {
+    /// The volume, bricks, family (default weights), tabulated family, step and threshold,
+    /// brick copies and the deal cache. Its shading flag is unused: shading is per frame.
+    job: RenderJob,
+    pofs: Option<Pofs>,
+}
+
+impl std::fmt::Debug for Scene {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Scene")
+            .field("volume", &self.job.volume.source())
+            .field("dims", &self.job.volume.dims())
+            .field("bricks", &self.job.grid.len())
+            .field("bases", &self.job.sampled.names())
+            .field("step", &self.job.settings.step)
+            .field("ert", &self.job.settings.ert)
+            .field("pofs", &self.pofs)
+            .finish_non_exhaustive()
+    }
+}
+
+/// `weights` must give every basis of `family` a finite weight ≥ 0.
+fn check_weights(family: &TransferFunction, weights: &[f32]) -> Result<()> {
+    if weights.len() != family.bases.len() {
+        return Err(Error::WeightCount {
+            got: weights.len(),
+            expected: family.bases.len(),
+        });
+    }
+    if let Some((index, got)) = weights
+        .iter()
+        .enumerate()
+        .find(|(_, k)| !k.is_finite() || **k < 0.0)
+    {
+        return Err(Error::Weight { index, got: *got });
+    }
+    Ok(())
+}
+
+impl Scene {
+    /// Starts a scene of `volume` rendered with `family` (bases, default weights, colour).
+    pub fn builder(volume: Volume, family: TransferFunction) -> SceneBuilder {
+        SceneBuilder::new(volume, family)
+    }
+
+    /// A scene of a job set up by hand, e.g. a distributed rank's with private copies of
+    /// its bricks ([`RenderJob::bricks`]); the job's weights become the defaults and its
+    /// shading flag is dropped.
+    ///
+    /// # Errors
+    /// [`Error::OutOfRange`] for a bad step or threshold, [`Error::WeightCount`] or
+    /// [`Error::Weight`] for bad weights.
+    pub fn from_job(job: RenderJob) -> Result<Scene> {
+        frame::check_settings(&job.settings)?;
+        check_weights(&job.tf, &job.tf.weights)?;
+        if job.grid.volume_dims() != job.volume.dims() {
+            return Err(Error::GridMismatch {
+                got: job.grid.volume_dims(),
+                expected: job.volume.dims(),
+            });
+        }
+        Ok(Scene::adopt(job))
+    }
+
+    /// Wraps a job whose settings are checked.
+    fn adopt(mut job: RenderJob) -> Scene {
+        job.settings.shade = false;
+        Scene { job, pofs: None }
+    }
+
+    /// The volume.
+    #[must_use]
+    pub fn volume(&self) -> &Volume {
+        &self.job.volume
+    }
+
+    /// Its bricks, with their value ranges.
+    #[must_use]
+    pub fn grid(&self) -> &BrickGrid {
+        &self.job.grid
+    }
+
+    /// The family: bases, default weights, colour.
+    #[must_use]
+    pub fn family(&self) -> &TransferFunction {
+        &self.job.tf
+    }
+
+    /// The family's own weights, which a [`FrameRequest`] without weights renders with.
+    #[must_use]
+    pub fn default_weights(&self) -> &[f32] {
+        &self.job.tf.weights
+    }
+
+    /// The family tabulated over the volume's value range.
+    #[must_use]
+    pub fn sampled(&self) -> &SampledTf {
+        &self.job.sampled
+    }
+
+    /// Sample distance in units of the smallest voxel spacing.
+    #[must_use]
+    pub fn step(&self) -> f32 {
+        self.job.settings.step
+    }
+
+    /// Early-termination threshold.
+    #[must_use]
+    pub fn early_termination(&self) -> f32 {
+        self.job.settings.ert
+    }
+
+    /// The POFs, when the scene has them: what [`Cull::Pof`] and [`Cull::PofSet`] carry.
+    #[must_use]
+    pub fn pofs(&self) -> Option<&Pofs> {
+        self.pofs.as_ref()
+    }
+
+    /// [`Cull::Pof`] when the scene has POFs, otherwise [`Cull::None`]: what `pofvr render`
+    /// and the viewer cull with unless told otherwise.
+    #[must_use]
+    pub fn default_cull(&self) -> Cull<'_> {
+        self.pofs.as_ref().map_or(Cull::None, Cull::Pof)
+    }
+
+    /// `mode` with this scene's POFs; `None` when `mode` reads POFs and the scene has none.
+    #[must_use]
+    pub fn cull(&self, mode: CullMode) -> Option<Cull<'_>> {
+        Cull::from_mode(mode, self.pofs.as_ref())
+    }
+
+    /// Bricks empty for `weights` (skipped in every mode).
+    ///
+    /// # Errors
+    /// [`Error::WeightCount`] or [`Error::Weight`] for bad weights.
+    pub fn empty_bricks(&self, weights: &[f32]) -> Result<usize> {
+        check_weights(&self.job.tf, weights)?;
+        Ok(self
+            .job
+            .grid
+            .ranges()
+            .iter()
+            .filter(|r| self.job.sampled.is_empty(**r, weights))
+            .count())
+    }
+
+    /// Which rank renders which brick ([`RenderJob::assignment`]); cached per curve, rank
+    /// count and replicas.
+    ///
+    /// # Errors
+    /// [`Error::Distribute`] for a rank count or replicas out of range.
+    pub fn assignment(
+        &self,
+        curve: Curve,
+        ranks: usize,
+        replicas: usize,
+    ) -> Result<Arc<BrickAssignment>> {
+        Ok(self.job.assignment(curve, ranks, replicas)?)
+    }
+
+    /// Each brick's layer under the occupied region's surface
+    /// ([`RenderJob::occupied_layers`]).
+    #[must_use]
+    pub fn occupied_layers(&self) -> Vec<usize> {
+        self.job.occupied_layers()
+    }
+
+    /// Precomputes POFs for this scene: its volume, bricks and bases, with its step and
+    /// early-termination threshold. Attach them with [`Scene::with_pofs`], or save them.
+    ///
+    /// # Errors
+    /// [`Error::Pof`] for a bad view grid, core length, pitch or margin.
+    pub fn build_pofs(&self, build: &PofBuild) -> Result<PofTable> {
+        self.build_pofs_with(build, None, &|_, _| {})
+    }
+
+    /// As [`Scene::build_pofs`], saving finished bricks to `partial` and resuming from it
+    /// ([`PofTable::build_resumable`]), and calling `progress(done, total)` as bricks
+    /// complete.
+    ///
+    /// # Errors
+    /// As [`Scene::build_pofs`], plus I/O errors on `partial`.
+    pub fn build_pofs_with(
+        &self,
+        build: &PofBuild,
+        partial: Option<&Path>,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<PofTable> {
+        let settings = build.settings(self.step(), self.early_termination());
+        let j = &self.job;
+        Ok(PofTable::build_resumable(
+            &j.volume, &j.grid, &j.tf, &j.sampled, &settings, partial, progress,
+        )?)
+    }
+
+    /// This scene with `table` as its POFs, once checked to be for its volume, bricks,
+    /// bases, step and threshold.
+    ///
+    /// # Errors
+    /// [`Error::Pof`] naming what differs.
+    pub fn with_pofs(mut self, table: PofTable) -> Result<Scene> {
+        table.check_matches(&self.job.volume, &self.job.grid, &self.job.tf)?;
+        let table = pofs::check_sampling(&self.job, "POF table", table)?;
+        let sets = table.has_sets();
+        self.pofs = Some(Pofs::new(Box::new(table), sets));
+        Ok(self)
+    }
+
+    /// This scene with the POF file `path` as its POFs, checked as [`Scene::with_pofs`]
+    /// does.
+    ///
+    /// # Errors
+    /// [`Error::Pof`] naming the file and what is wrong with it.
+    pub fn load_pofs(self, path: impl AsRef<Path>) -> Result<Scene> {
+        self.load_pof_levels(path, &[])
+    }
+
+    /// This scene with `first` and further levels of it built with other core lengths (or
+    /// for sub-bricks) as its POFs ([`RenderJob::load_pof_levels`]).
+    ///
+    /// # Errors
+    /// [`Error::Pof`] naming the file and what differs, or two levels of one core length.
+    pub fn load_pof_levels(mut self, first: impl AsRef<Path>, more: &[PathBuf]) -> Result<Scene> {
+        let levels = pofs::load_levels(&self.job, first.as_ref(), more)?;
+        let sets = levels.has_sets();
+        self.pofs = Some(Pofs::new(Box::new(levels), sets));
+        Ok(self)
+    }
+
+    /// This scene with the bound of its bricks' value ranges as its POFs
+    /// ([`RangeBound`]: weak but conservative, and needs no precomputation), claimed for
+    /// rays running at least `core` inside a brick.
+    #[must_use]
+    pub fn with_range_bound(mut self, core: f32) -> Scene {
+        let j = &self.job;
+        let bound = RangeBound::new(&j.grid, &j.sampled, j.settings.step, j.settings.ert, core);
+        self.pofs = Some(Pofs::new(Box::new(bound), false));
+        self
+    }
+
+    /// The weights, shading and frame options of `req`, checked.
+    fn resolve<'s>(&'s self, req: &FrameRequest<'s>) -> Result<(Look<'s>, FrameOptions)> {
+        let weights = req.weights.unwrap_or(&self.job.tf.weights);
+        check_weights(&self.job.tf, weights)?;
+        if let Some(p) = req.cull.pofs() {
+            if !self.pofs.as_ref().is_some_and(|own| std::ptr::eq(own, p)) {
+                return Err(Error::ForeignPofs);
+            }
+        }
+        let look = Look {
+            weights,
+            shade: req.shade,
+        };
+        let opts = FrameOptions {
+            cull: req.cull.mode(),
+            cull_threshold: req.threshold,
+            ranks: req.ranks,
+            curve: req.curve,
+            replicas: req.replicas,
+        };
+        Ok((look, opts))
+    }
+
+    /// The bounds every mode is given: the scene's POFs, whatever the mode (the POF modes
+    /// cull with them; every mode's replicas use them to share out bricks).
+    fn bound(&self) -> Option<&dyn OpacityBound> {
+        self.pofs.as_ref().map(Pofs::bound)
+    }
+
+    /// Renders one frame with `req.ranks` in-process ranks (paper §3.3, §4): the same image
+    /// for any rank count, curve or replicas.
+    ///
+    /// # Errors
+    /// [`Error::WeightCount`], [`Error::Weight`], [`Error::OutOfRange`] (threshold, ranks),
+    /// [`Error::ForeignPofs`], or a failed rank's error.
+    pub fn render(&self, req: &FrameRequest<'_>) -> Result<Frame> {
+        let (look, opts) = self.resolve(req)?;
+        let (image, stats) = frame::frame_with(&self.job, look, self.bound(), req.camera, &opts)?;
+        Ok(Frame { image, stats })
+    }
+
+    /// This process's part of a frame rendered by every rank of `comm` (its size is the
+    /// rank count; `req.ranks` is not read). Rank 0 gets the frame, the others `None`.
+    ///
+    /// # Errors
+    /// As [`Scene::render`]; a failing rank aborts `comm` so that no peer waits forever.
+    pub fn render_on(
+        &self,
+        comm: &dyn Communicator,
+        req: &FrameRequest<'_>,
+    ) -> Result<Option<Frame>> {
+        let (look, opts) = self.resolve(req)?;
+        let opts = FrameOptions { ranks: 1, ..opts };
+        let frame = frame::frame_on_with(comm, &self.job, look, self.bound(), req.camera, &opts)?;
+        Ok(frame.map(|(image, stats)| Frame { image, stats }))
+    }
+
+    /// The whole volume ray-cast in one pass with `req`'s camera, weights and shading: no
+    /// bricks, no culling (its cull mode, threshold and ranks are not read). Culled frames
+    /// are checked against it.
+    ///
+    /// # Errors
+    /// [`Error::WeightCount`] or [`Error::Weight`] for bad weights.
+    pub fn render_reference(&self, req: &FrameRequest<'_>) -> Result<Frame> {
+        let weights = req.weights.unwrap_or(&self.job.tf.weights);
+        check_weights(&self.job.tf, weights)?;
+        let look = Look {
+            weights,
+            shade: req.shade,
+        };
+        let (image, stats) = frame::reference_with(&self.job, look, req.camera);
+        Ok(Frame { image, stats })
+    }
+}

@@ -1,0 +1,320 @@
+use std::path::Path;
+use std::sync::Arc;
+
+use super::*;
+use crate::error::{OutOfRange, Setting, Value};
+use crate::frame::{render_frame, render_reference};
+use crate::pof::PofError;
+use crate::render::{families, Camera, Projection, RenderSettings};
+use crate::volume::phantom::Phantom;
+
+fn head(n: usize) -> (Volume, TransferFunction) {
+    (
+        Phantom::SheppLogan.generate(n),
+        families::for_phantom(Phantom::SheppLogan),
+    )
+}
+
+fn scene(n: usize) -> Scene {
+    let (v, tf) = head(n);
+    Scene::builder(v, tf).build().unwrap()
+}
+
+/// The job the legacy entry points render, with `weights` and `shade` as its own.
+fn job(n: usize, weights: &[f32], shade: bool) -> RenderJob {
+    let (v, mut tf) = head(n);
+    tf.weights = weights.to_vec();
+    let settings = RenderSettings {
+        shade,
+        ..RenderSettings::default()
+    };
+    RenderJob::new(v, tf, 16, settings).unwrap()
+}
+
+fn camera(s: &Scene, az: f64) -> Camera {
+    Camera::orbit(s.volume(), az, 20.0, 40, 32, Projection::Orthographic)
+}
+
+fn small_build() -> PofBuild {
+    PofBuild {
+        views: [4, 4],
+        ..PofBuild::default()
+    }
+}
+
+#[test]
+fn scene_is_send_and_sync() {
+    fn shared<T: Send + Sync>() {}
+    shared::<Scene>();
+    shared::<Pofs>();
+    shared::<Frame>();
+}
+
+#[test]
+fn one_arc_scene_renders_from_many_threads_with_each_threads_look() {
+    let s = Arc::new(scene(32).with_range_bound(4.0));
+    let looks: Vec<(Vec<f32>, bool)> = vec![
+        (vec![1.0, 1.0], false),
+        (vec![0.0, 1.0], true),
+        (vec![2.0, 0.5], false),
+        (vec![1.0, 1.0], true),
+    ];
+    let frames: Vec<Frame> = std::thread::scope(|scope| {
+        let workers: Vec<_> = looks
+            .iter()
+            .map(|(w, shade)| {
+                let s = Arc::clone(&s);
+                scope.spawn(move || {
+                    let cam = camera(&s, 30.0);
+                    let cull = s.default_cull();
+                    let req = FrameRequest::new(&cam).weights(w).shade(*shade).cull(cull);
+                    s.render(&req).unwrap()
+                })
+            })
+            .collect();
+        workers.into_iter().map(|w| w.join().unwrap()).collect()
+    });
+    for ((w, shade), frame) in looks.iter().zip(&frames) {
+        // Each frame is the one a job with that look renders by itself, bit for bit.
+        let j = job(32, w, *shade);
+        let bound = RangeBound::new(&j.grid, &j.sampled, j.settings.step, j.settings.ert, 4.0);
+        let cam = Camera::orbit(&j.volume, 30.0, 20.0, 40, 32, Projection::Orthographic);
+        let opts = FrameOptions {
+            cull: CullMode::Pof,
+            ..FrameOptions::default()
+        };
+        let (alone, st) = render_frame(&j, Some(&bound), &cam, &opts).unwrap();
+        assert_eq!(frame.image.pixels(), alone.pixels(), "{w:?} shade {shade}");
+        assert_eq!(frame.stats.bricks, st.bricks);
+        assert_eq!(frame.stats.cull, Some(CullMode::Pof));
+    }
+    assert_ne!(frames[0].image.pixels(), frames[1].image.pixels());
+}
+
+#[test]
+fn facade_frames_are_the_legacy_frames_bit_for_bit() {
+    let w = [0.5, 2.0];
+    let s = scene(40);
+    let j = job(40, &w, true);
+    let cam = camera(&s, -50.0);
+    for mode in [CullMode::None, CullMode::Exact] {
+        for ranks in [1, 3] {
+            let req = FrameRequest::new(&cam)
+                .weights(&w)
+                .shade(true)
+                .cull(s.cull(mode).unwrap())
+                .ranks(ranks)
+                .threshold(0.9);
+            let frame = s.render(&req).unwrap();
+            let opts = FrameOptions {
+                cull: mode,
+                cull_threshold: 0.9,
+                ranks,
+                ..FrameOptions::default()
+            };
+            let (image, stats) = render_frame(&j, None, &cam, &opts).unwrap();
+            assert_eq!(frame.image.pixels(), image.pixels(), "{mode:?} {ranks}");
+            assert_eq!(frame.stats.bricks, stats.bricks);
+            assert_eq!(frame.culled_bricks(), stats.bricks.culled);
+        }
+    }
+    let reference = s
+        .render_reference(&FrameRequest::new(&cam).weights(&w).shade(true))
+        .unwrap();
+    assert_eq!(
+        reference.image.pixels(),
+        render_reference(&j, &cam).0.pixels()
+    );
+    // Without weights, a request renders with the family's.
+    let (plain, _) = render_reference(&job(40, &[1.0, 1.0], false), &cam);
+    let default = s.render_reference(&FrameRequest::new(&cam)).unwrap();
+    assert_eq!(s.default_weights(), &[1.0, 1.0]);
+    assert_eq!(default.image.pixels(), plain.pixels());
+}
+
+#[test]
+fn pofs_built_from_a_scene_take_its_step_and_threshold() {
+    let (v, tf) = head(32);
+    let s = Scene::builder(v, tf)
+        .step(0.5)
+        .early_termination(0.9)
+        .build()
+        .unwrap();
+    let table = s.build_pofs(&small_build()).unwrap();
+    assert_eq!((table.step(), table.ert()), (0.5, 0.9));
+    let s = s.with_pofs(table).unwrap();
+    let pofs = s.pofs().expect("attached");
+    assert!(!pofs.has_sets());
+    let cam = camera(&s, 10.0);
+    let culled = s
+        .render(&FrameRequest::new(&cam).cull(Cull::Pof(pofs)))
+        .unwrap();
+    let none = s.render(&FrameRequest::new(&cam)).unwrap();
+    assert_eq!(culled.stats.cull, Some(CullMode::Pof));
+    assert_eq!(none.stats.cull, Some(CullMode::None));
+    let rule = crate::check::rule::check_threshold_rule(&none.image, &culled.image, 0.95);
+    assert!(rule.holds(), "{rule}");
+
+    // A table built for another step is refused, naming what differs.
+    let other = scene(32);
+    let table = other.build_pofs(&small_build()).unwrap();
+    let (v, tf) = head(32);
+    let half = Scene::builder(v, tf).step(0.5).build().unwrap();
+    let e = half.with_pofs(table).unwrap_err();
+    assert!(
+        matches!(&e, Error::Pof(PofError::Mismatch { what, .. }) if *what == Setting::Step.name()),
+        "{e}"
+    );
+    assert!(e.to_string().contains("sample step"), "{e}");
+}
+
+#[test]
+fn a_request_with_another_scenes_pofs_is_refused() {
+    let a = scene(16).with_range_bound(4.0);
+    let b = scene(16).with_range_bound(4.0);
+    let cam = camera(&a, 0.0);
+    let pofs = b.pofs().unwrap();
+    let e = a
+        .render(&FrameRequest::new(&cam).cull(Cull::Pof(pofs)))
+        .unwrap_err();
+    assert!(matches!(e, Error::ForeignPofs), "{e}");
+    assert!(a
+        .render(&FrameRequest::new(&cam).cull(a.default_cull()))
+        .is_ok());
+    // A POF mode needs POFs: a scene without them has no such cull.
+    assert!(scene(16).cull(CullMode::Pof).is_none());
+    assert!(matches!(scene(16).cull(CullMode::Exact), Some(Cull::Exact)));
+}
+
+#[test]
+fn bad_settings_are_typed_errors_that_name_no_flag() {
+    let (v, tf) = head(16);
+    let e = Scene::builder(v, tf).step(0.0).build().unwrap_err();
+    assert_eq!(
+        e.out_of_range(),
+        Some(&OutOfRange {
+            setting: Setting::Step,
+            got: Value::Real(0.0),
+            expected: "a value in (0.001, 64]"
+        })
+    );
+    let (v, tf) = head(16);
+    let e = Scene::builder(v, tf)
+        .early_termination(-1.0)
+        .build()
+        .unwrap_err();
+    assert_eq!(
+        e.out_of_range().map(|r| r.setting),
+        Some(Setting::EarlyTermination)
+    );
+    let (v, tf) = head(16);
+    let e = Scene::builder(v, tf).brick_size(1).build().unwrap_err();
+    assert!(matches!(e, Error::Brick(_)), "{e}");
+
+    let s = scene(16);
+    let cam = camera(&s, 0.0);
+    assert!(!e.to_string().contains("--"), "{e}");
+    let mut messages = Vec::new();
+    let e = s
+        .render(&FrameRequest::new(&cam).threshold(1.5))
+        .unwrap_err();
+    assert_eq!(
+        e.out_of_range().map(|r| (r.setting, r.got)),
+        Some((Setting::CullThreshold, Value::Real(1.5)))
+    );
+    messages.push(e.to_string());
+    let e = s.render(&FrameRequest::new(&cam).ranks(0)).unwrap_err();
+    assert_eq!(
+        e.out_of_range().map(|r| (r.setting, r.got)),
+        Some((Setting::Ranks, Value::Count(0)))
+    );
+    messages.push(e.to_string());
+    let e = s
+        .render(&FrameRequest::new(&cam).weights(&[1.0]))
+        .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            Error::WeightCount {
+                got: 1,
+                expected: 2
+            }
+        ),
+        "{e}"
+    );
+    messages.push(e.to_string());
+    let e = s
+        .render_reference(&FrameRequest::new(&cam).weights(&[1.0, -1.0]))
+        .unwrap_err();
+    assert!(
+        matches!(e, Error::Weight { index: 1, got } if got == -1.0),
+        "{e}"
+    );
+    messages.push(e.to_string());
+    assert_eq!(s.empty_bricks(&[1.0]).unwrap_err().to_string(), messages[2]);
+    for m in &messages {
+        assert!(!m.contains("--"), "{m}");
+        assert!(m.contains("got"), "{m}");
+    }
+    assert!(messages[0].contains("cull threshold: got 1.5, expected a value in (0, 1]"));
+}
+
+#[test]
+fn pof_files_load_checked_and_name_a_bad_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = scene(32);
+    let save = |core: f32, name: &str| {
+        let build = PofBuild {
+            core_length: Some(core),
+            ..small_build()
+        };
+        let p = dir.path().join(name);
+        s.build_pofs(&build).unwrap().save(&p).unwrap();
+        p
+    };
+    let (a, b) = (save(8.0, "a.pof"), save(12.0, "b.pof"));
+    let s = s.load_pof_levels(&b, std::slice::from_ref(&a)).unwrap();
+    // The shortest core comes first, the longer one as the deeper level.
+    let bound = s.pofs().unwrap().bound();
+    assert_eq!(bound.core_length(), 8.0);
+    assert_eq!(bound.deeper().map(OpacityBound::core_length), Some(12.0));
+    let e = scene(32)
+        .load_pof_levels(&a, std::slice::from_ref(&a))
+        .unwrap_err();
+    assert!(e.to_string().contains("core length 8"), "{e}");
+    let e = scene(32)
+        .load_pof_levels(&a, &[dir.path().join("missing.pof")])
+        .unwrap_err();
+    assert!(e.to_string().contains("missing.pof"), "{e}");
+    let e = scene(32).load_pofs(Path::new("missing.pof")).unwrap_err();
+    assert!(e.to_string().contains("missing.pof"), "{e}");
+    // A file for a scene of another step names the step.
+    let (v, tf) = head(32);
+    let half = Scene::builder(v, tf).step(0.5).build().unwrap();
+    let e = half.load_pofs(&a).unwrap_err();
+    assert!(e.to_string().contains("sample step"), "{e}");
+    assert!(e.to_string().contains("a.pof"), "{e}");
+    let s = scene(32).load_pofs(&a).unwrap();
+    assert_eq!(s.pofs().unwrap().core_length(), 8.0);
+}
+
+#[test]
+fn a_scene_adopts_a_job_with_its_weights_as_defaults() {
+    let j = job(16, &[0.5, 1.5], true);
+    let s = Scene::from_job(j).unwrap();
+    assert_eq!(s.default_weights(), &[0.5, 1.5]);
+    let cam = camera(&s, 0.0);
+    // The job's shading is dropped: shading is per frame.
+    let f = s.render_reference(&FrameRequest::new(&cam)).unwrap();
+    let (unshaded, _) = render_reference(&job(16, &[0.5, 1.5], false), &cam);
+    assert_eq!(f.image.pixels(), unshaded.pixels());
+    let mut bad = job(16, &[1.0, 1.0], false);
+    bad.tf.weights = vec![1.0];
+    assert!(matches!(
+        Scene::from_job(bad),
+        Err(Error::WeightCount {
+            got: 1,
+            expected: 2
+        })
+    ));
+}
