@@ -3,9 +3,11 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
 use super::reference::{core_min, ReferenceProbe};
+use super::view_grid::{border_cells, cell_of};
 use super::*;
-use crate::brick::BrickGrid;
+use crate::brick::{BrickGrid, BrickId};
 use crate::render::families;
+use crate::render::{SampledTf, TransferFunction};
 use crate::volume::phantom::Phantom;
 use crate::volume::{Volume, VoxelData, Voxels};
 
@@ -588,19 +590,30 @@ fn interrupted_build_resumes_from_the_partial_file() {
     assert_eq!(third.meta().views, [10, 10]);
 }
 
+/// The folder of real volumes: `$POFVR_DATA` if set, else `../shared/data` beside the
+/// workspace.
+fn data_dir() -> std::path::PathBuf {
+    std::env::var_os("POFVR_DATA").map_or_else(
+        || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+        std::path::PathBuf::from,
+    )
+}
+
 #[test]
+#[ignore = "needs ../shared/data (real volumes)"]
 fn real_anisotropic_ct_lookups_never_exceed_brute_force() {
-    // Optional: the catalogue's quarter-resolution CT head (i16, spacing 3.2×3.2×1.5 mm),
-    // the case where index and world directions differ.
-    let path =
-        std::path::Path::new("/work/shared/data/headsq_quarter/headsq_quarter_64x64x93_int16.raw");
-    if !path.exists() {
-        eprintln!("skipped: {} is not present", path.display());
-        return;
-    }
+    // The catalogue's quarter-resolution CT head (i16, spacing 3.2×3.2×1.5 mm), the case
+    // where index and world directions differ.
+    let path = data_dir().join("headsq_quarter/headsq_quarter_64x64x93_int16.raw");
+    assert!(
+        path.exists(),
+        "needs real data: {} is not present (set POFVR_DATA to the folder of real volumes, \
+         or leave this test ignored)",
+        path.display()
+    );
     let mut spec = crate::volume::RawSpec::new([64, 64, 93], crate::volume::DataType::I16);
     spec.spacing = [3.2, 3.2, 1.5];
-    let volume = crate::volume::raw::open(path, &spec).unwrap();
+    let volume = crate::volume::raw::open(&path, &spec).unwrap();
     let tf = TransferFunction::from_json(
         r#"{"bases":[{"name":"head","opacity":[[300,0],[500,0.05],[4000,0.05]]},
                      {"name":"bone","opacity":[[1400,0],[1800,0.3],[4000,0.3]]}],
