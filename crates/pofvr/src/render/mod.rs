@@ -1,11 +1,12 @@
 //! Stage 5: cameras, transfer functions and the ray caster.
 
-#[cfg(target_arch = "x86_64")]
-mod avx2;
+mod arch;
 pub mod camera;
 pub mod families;
 pub mod image;
+mod lattice;
 pub mod ray_caster;
+pub(crate) mod sampler;
 #[cfg(test)]
 mod test;
 pub mod transfer_function;

@@ -8,7 +8,7 @@ use crate::volume::{Volume, Voxel, VoxelData, Voxels};
 use crate::with_voxels;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
-use ray_caster::Trilinear;
+use sampler::TrilinearSampler;
 
 fn constant_tf(alpha: f32) -> TransferFunction {
     TransferFunction::from_json(
@@ -247,7 +247,7 @@ fn early_termination_stops_at_the_threshold() {
 /// path of `RayCaster::march` must reproduce bit for bit.
 #[allow(clippy::cast_precision_loss)]
 fn march_reference<T: Voxel>(
-    tri: &Trilinear<'_, T>,
+    tri: &TrilinearSampler<'_, T>,
     cls: &Classifier,
     settings: RenderSettings,
     ray: &IndexRay,
@@ -342,7 +342,7 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
         let vbox = caster.volume_box();
         let dims = vol.dims();
         with_voxels!(vol.data(), v => {
-            let tri = Trilinear::new(v, dims);
+            let tri = TrilinearSampler::new(v, dims);
             for _ in 0..200 {
                 #[allow(clippy::cast_precision_loss)]
                 let ray = if rng.gen_bool(0.5) {
@@ -378,6 +378,10 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
                 let ns = march_reference(&tri, &cls, settings, &ray, range, &mut slow);
                 let n1 = one.march(&tri, &ray, range, &mut single);
                 assert_eq!((n1, single.map(f32::to_bits)), (ns, slow.map(f32::to_bits)));
+                // The scalar reference loop itself (what shading runs).
+                let mut generic = start;
+                let ng = arch::generic::march(&caster.params(), &tri, &ray, range, &mut generic);
+                assert_eq!((ng, generic.map(f32::to_bits)), (ns, slow.map(f32::to_bits)));
                 assert_eq!(nf, ns, "case {case}: {ray:?} {range:?}");
                 assert_eq!(
                     fast.map(f32::to_bits),

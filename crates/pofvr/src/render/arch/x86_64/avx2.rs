@@ -3,7 +3,7 @@
 //! A ray's samples are independent of each other until they are composited, so the
 //! positions, cell indices, corner gathers, trilinear weights, classification bins and
 //! opacities of eight consecutive samples are computed lane-wise, with exactly the float
-//! operations of the scalar definition (`RayCaster::march_scalar`: no fused multiply–adds),
+//! operations of the scalar definition ([`super::super::generic::march`]: no fused multiply–adds),
 //! and only the composite, which carries the accumulator from sample to sample, runs one
 //! sample at a time. Eight samples that all classify as transparent leave the accumulator
 //! untouched and are skipped as a whole: that is most of the samples in the empty space
@@ -22,8 +22,9 @@ use std::arch::x86_64::{
     _mm_storeu_ps,
 };
 
-use super::ray_caster::{IndexRay, Trilinear};
-use super::transfer_function::{ClassifierView, BIN_MAX};
+use crate::render::lattice::IndexRay;
+use crate::render::sampler::TrilinearSampler;
+use crate::render::transfer_function::{ClassifierView, BIN_MAX};
 use crate::volume::Voxel;
 
 /// Whether this CPU runs the AVX2 loop (checked once; `POFVR_SIMD=sse2` turns it off, for
@@ -55,7 +56,8 @@ pub(crate) trait Gather8: Voxel {
 
 /// The four 32-bit words at elements `base`, `base + sy`, `base + sz`, `base + sy + sz`,
 /// lane by lane: a corner and its x neighbour for 16-bit voxels, and two more bytes for
-/// 8-bit ones. Scalar loads: on the CPUs measured, faster than `vpgatherdd`.
+/// 8-bit ones. Scalar loads rather than `vpgatherdd`, which on common cores is slower
+/// than eight loads.
 ///
 /// # Safety
 /// Every word lies inside `v`'s allocation.
@@ -185,7 +187,7 @@ impl Gather8 for f32 {
 
 /// Whether [`march`] can take `tri`: 32-bit lane indices, and the unit x step the type's
 /// gather needs.
-pub(crate) fn fits<T: Gather8>(tri: &Trilinear<'_, T>) -> bool {
+pub(crate) fn fits<T: Gather8>(tri: &TrilinearSampler<'_, T>) -> bool {
     tri.v.len() < i32::MAX as usize && (!T::UNIT_X || tri.step[0] == 1)
 }
 
@@ -196,7 +198,7 @@ pub(crate) struct Acc {
     pub(crate) a3: f32,
 }
 
-/// Composites samples `k0..k1` of `ray` into `acc` as `RayCaster::march_scalar` does, bit
+/// Composites samples `k0..k1` of `ray` into `acc` as [`super::super::generic::march`] does, bit
 /// for bit; returns the samples taken and, when a cell near the end of the data would have
 /// made a gather read past it, the sample index to go on from with another path.
 ///
@@ -211,7 +213,7 @@ pub(crate) struct Acc {
     clippy::too_many_arguments
 )]
 pub(crate) unsafe fn march<T: Gather8>(
-    tri: &Trilinear<'_, T>,
+    tri: &TrilinearSampler<'_, T>,
     cls: ClassifierView<'_>,
     step: f32,
     ert: f32,
