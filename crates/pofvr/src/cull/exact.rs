@@ -18,7 +18,6 @@ pub(super) fn add_rendered(
     let (frag, _) = caster.render_box(camera, frame, rect, ibox);
     let (rw, tw) = (rect.width() as usize, tile.width() as usize);
     for (i, p) in frag.iter().enumerate() {
-        #[allow(clippy::cast_possible_truncation)]
         let (x, y) = (rect.x0 + (i % rw) as u32, rect.y0 + (i / rw) as u32);
         let b = &mut buffer[(y - tile.y0) as usize * tw + (x - tile.x0) as usize];
         *b += (1.0 - *b) * p[3];

@@ -11,7 +11,7 @@ pub enum CullMode {
     /// Aggressive POF-set culling (§3.2.2): the opacity at each basis's `q_min` pixel,
     /// which the paper calls "very likely" the block's opacity. An estimate, not a bound:
     /// where every basis is thin at some other pixel of the footprint it overestimates, and
-    /// a few pixels may then break the threshold rule (seen on real data).
+    /// a few pixels may then break the threshold rule.
     PofSet,
     /// The sequential oracle: bricks are rendered front to back and tested against the
     /// opacity actually composited. Exists to measure how close POF culling gets.

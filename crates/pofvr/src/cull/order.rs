@@ -56,9 +56,7 @@ impl FrameBricks {
                 continue;
             };
             footprints[id.index()] = Some(rect);
-            #[allow(clippy::cast_possible_wrap, clippy::cast_possible_truncation)]
             let c = grid.coords(id).map(|x| x as i64);
-            #[allow(clippy::cast_possible_truncation)]
             let key = match camera.projection {
                 Projection::Orthographic => {
                     let s = [frame.forward.x, frame.forward.y, frame.forward.z].map(|x| {
@@ -83,7 +81,6 @@ impl FrameBricks {
         let order: Vec<BrickId> = keyed.into_iter().map(|(_, id)| id).collect();
         let mut depth_key = vec![i64::MAX; grid.len()];
         for (i, id) in order.iter().enumerate() {
-            #[allow(clippy::cast_possible_wrap)]
             {
                 depth_key[id.index()] = i as i64;
             }

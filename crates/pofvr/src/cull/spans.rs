@@ -113,7 +113,6 @@ impl Region {
         // run empty instead of holding x0.
         let (fx0, fx1) = (f64::from(x0), f64::from(x1));
         let (lo, hi1) = (lo.clamp(fx0, fx1), hi.clamp(fx0 - 1.0, fx1) + 1.0);
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         let (a, b) = {
             let t = lo as u32;
             (t + u32::from(f64::from(t) < lo), (hi1 as u32).min(x1))
@@ -135,7 +134,6 @@ impl Region {
         if lo > hi {
             return x0..x0;
         }
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         let clip = |x: f64| x.clamp(f64::from(x0), f64::from(x1)) as u32;
         clip(lo.floor() - 1.0)..clip(hi.ceil() + 2.0)
     }
@@ -248,7 +246,6 @@ impl<'a> PixelSpans<'a> {
         if !(lo.is_finite() && hi.is_finite()) {
             return None;
         }
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         let clip = |y: f64| y.clamp(0.0, f64::from(u32::MAX)) as u32;
         Some((clip(lo.floor() - 1.0), clip(hi.ceil() + 2.0)))
     }

@@ -112,9 +112,11 @@ impl Culler<'_> {
         let tw = tile.width() as usize;
         let mut buffer = self.scratch.take(tile.area());
         let spans = PixelSpans::new(camera, &frame, self.volume);
-        let mut adds = match self.mode {
+        // What a visible brick adds to the buffer: its POF bounds, or (`None`, the oracle) the
+        // opacity it composites, rendered.
+        let mut fill = match self.mode {
             CullMode::None => unreachable!("every brick is visible without culling"),
-            CullMode::Exact => Adds::Rendered,
+            CullMode::Exact => None,
             CullMode::Pof | CullMode::PofSet => {
                 let bounds = self.bounds.expect("POF culling needs POFs");
                 let view = BoundView {
@@ -125,7 +127,7 @@ impl Culler<'_> {
                     weights: self.weights,
                     aggressive: self.mode == CullMode::PofSet,
                 };
-                Adds::Bounds(BoundFill::new(
+                Some(BoundFill::new(
                     bounds,
                     self.grid,
                     view,
@@ -137,8 +139,8 @@ impl Culler<'_> {
         // The POF lookups read a few scattered lines of a large table, cold after the ray
         // casting of the previous frame: the next bricks' are asked for a batch ahead.
         // (Sub-brick bounds are looked up by other ids: they are prefetched per brick.)
-        let prefetch = match (&adds, self.bounds) {
-            (Adds::Bounds(fill), Some(b)) if fill.has_own() => {
+        let prefetch = match (&fill, self.bounds) {
+            (Some(fill), Some(b)) if fill.has_own() => {
                 (camera.projection == Projection::Orthographic).then_some(b)
             }
             _ => None,
@@ -183,28 +185,20 @@ impl Culler<'_> {
             }
             let ibox = ibox.unwrap_or_else(|| self.grid.index_box(id));
             out.visible.push(id);
-            match &mut adds {
-                Adds::Rendered => exact::add_rendered(
+            match &mut fill {
+                None => exact::add_rendered(
                     self.caster,
                     (camera, &frame),
                     &ibox,
                     rect,
                     (&mut buffer, tile),
                 ),
-                Adds::Bounds(fill) => fill.add((&mut buffer, tile), id, &ibox, rect),
+                Some(fill) => fill.add((&mut buffer, tile), id, &ibox, rect),
             }
         }
         self.scratch.give(buffer);
         out
     }
-}
-
-/// What a visible brick adds to the opacity buffer.
-enum Adds<'a> {
-    /// The opacity it composites, rendered (the oracle).
-    Rendered,
-    /// Its POF bounds.
-    Bounds(BoundFill<'a>),
 }
 
 /// Rows of the strips a tile is culled in, in parallel (POF modes): enough that a brick's

@@ -376,15 +376,12 @@ fn occupied_layers_peel_the_occupied_region_from_its_surface() {
         let mut near = Vec::new();
         for a in 0..3 {
             for s in [-1i64, 1] {
-                #[allow(clippy::cast_possible_wrap, clippy::cast_sign_loss)]
                 let x = c[a] as i64 + s;
-                #[allow(clippy::cast_possible_wrap)]
                 if x < 0 || x >= counts[a] as i64 {
                     near.push(0); // outside the volume counts as empty
                     continue;
                 }
                 let mut n = c;
-                #[allow(clippy::cast_sign_loss, clippy::cast_possible_truncation)]
                 {
                     n[a] = x as usize;
                 }

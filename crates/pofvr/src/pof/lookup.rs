@@ -60,9 +60,7 @@ impl PofTable {
                     };
                 }
             }
-            #[allow(clippy::cast_possible_truncation)]
-            let a = (1.0 - t) as f32;
-            a
+            (1.0 - t) as f32
         };
         let a = match mode {
             PofMode::Sets if self.meta.sets => (0..p)
@@ -100,9 +98,7 @@ impl PofTable {
             // The anchor's own weights (the common case): the joint POF as stored.
             return aj;
         }
-        #[allow(clippy::cast_possible_truncation)]
-        let a = (1.0 - (1.0 - f64::from(aj)).powf(c)) as f32;
-        a
+        (1.0 - (1.0 - f64::from(aj)).powf(c)) as f32
     }
 
     /// Run-time opacity of `brick` seen along `view_dir` (unit world direction, eye to

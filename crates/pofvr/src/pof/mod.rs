@@ -6,9 +6,10 @@
 //! With [`PofMethod::Bound`] (the default) the following holds rigorously for the measured
 //! directions and, through `margin`, for the directions between them. A
 //! [`PofMethod::Sampled`] table only aims at it: its values are measured on a finite grid
-//! of rays, phases and directions, so it is an empirical bound whose margin was chosen so
-//! that `pofvr pof check` finds no violation; it can be exceeded (it was, by up to 0.13, on
-//! the anisotropic 64×64×93 CT head), so check a sampled table on the volume it is for.
+//! of rays, phases and directions, so it is an empirical bound whose margin is chosen so
+//! that `pofvr pof check` finds no violation; it can be exceeded (anisotropic volumes, where
+//! index and world directions differ, are the likeliest), so check a sampled table on the
+//! volume it is for.
 //!
 //! For brick `b`, basis `i` and the angular cell `(θ, φ)` of a view direction `d`, the
 //! stored opacity `α` satisfies, for *every* ray of a direction in that cell whose `t`-span

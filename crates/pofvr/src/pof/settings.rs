@@ -78,10 +78,8 @@ pub struct PofSettings {
     pub ert: f32,
     /// Core length `L` in `t` units; `None` = half a brick. Default `None`.
     ///
-    /// Longer cores give higher POFs over fewer pixels. On the 128³ head (36×36 views),
-    /// L = 4 / 8 / 12 gave a mean POF of 0.016 / 0.041 / 0.066 with the core covering
-    /// 79 % / 61 % / 45 % of the footprint: half a brick keeps most of the gain while the
-    /// core stays the larger part of the footprint.
+    /// Longer cores give higher POFs over fewer pixels: half a brick keeps most of the gain
+    /// while the core stays the larger part of the footprint.
     pub core_length: Option<f32>,
     /// `Bound`: edge of the entry-face patches the bound is evaluated on, in voxels (≤ 0.5
     /// keeps a patch inside at most two cells per axis for step ≤ 0.5). Default 0.5.

@@ -256,7 +256,6 @@ impl PofTable {
     /// Bytes of one basis's POF for one brick: the encoding's cost, the figure the paper
     /// compares (table vs polynomial). Sets and the joint POF add to [`PofTable::bytes_per_brick`].
     #[must_use]
-    #[allow(clippy::cast_precision_loss)]
     pub fn bytes_per_brick_per_basis(&self) -> f64 {
         self.meta.encoding.function_bytes(self.meta.views) as f64
     }

@@ -220,7 +220,6 @@ fn check_conservative(
             ratio += od(a) / od(m);
         }
     }
-    #[allow(clippy::cast_precision_loss)]
     (compared, ratio / compared.max(1) as f64)
 }
 
@@ -698,7 +697,6 @@ fn sampled_table_is_tighter_than_the_bound() {
             }
         }
     }
-    #[allow(clippy::cast_precision_loss)]
     let share = at_least as f64 / cells as f64;
     eprintln!(
         "{cells} non-zero cells: mean bound {:.4}, mean sampled {:.4}; sampled ≥ bound in {:.1}%, > 1.5× in {above}",

@@ -27,7 +27,6 @@ pub struct IndexRay {
 impl IndexRay {
     /// Converts a world ray for a volume with `spacing` and smallest spacing `unit`.
     #[must_use]
-    #[allow(clippy::cast_possible_truncation)]
     pub fn new(ray: &Ray, spacing: [f32; 3], unit: f32) -> Self {
         let s = DVec3::from(spacing.map(f64::from));
         let o = ray.origin / s;
@@ -66,7 +65,6 @@ impl IndexRay {
 /// First lattice index `k ≥ 0` with `k·step ≥ t`.
 #[inline]
 #[must_use]
-#[allow(clippy::cast_possible_truncation, clippy::cast_precision_loss)]
 pub fn first_sample(t: f32, step: f32) -> i32 {
     if t <= 0.0 {
         return 0;

@@ -105,7 +105,6 @@ impl<'a> RayCaster<'a> {
 
     /// The index-space box of the whole volume.
     #[must_use]
-    #[allow(clippy::cast_precision_loss)]
     pub fn volume_box(&self) -> IndexBox {
         IndexBox {
             lo: [0.0; 3],
@@ -140,7 +139,6 @@ impl<'a> RayCaster<'a> {
                     for x0 in (0..w).step_by(TILE_COLS) {
                         for r in 0..rows.len() / w {
                             for x in x0..(x0 + TILE_COLS).min(w) {
-                                #[allow(clippy::cast_possible_truncation)]
                                 let ray = self.pixel_ray(camera, &frame, x as u32, (band * TILE_ROWS + r) as u32);
                                 if let Some(span) = ray.span(&vbox) {
                                     st.rays += 1;
@@ -225,7 +223,6 @@ impl<'a> RayCaster<'a> {
         let mut st = RayStats::default();
         let w = rect.width() as usize;
         for (i, px) in out.iter_mut().enumerate() {
-            #[allow(clippy::cast_possible_truncation)]
             let (x, y) = (rect.x0 + (i % w) as u32, rect.y0 + (i / w) as u32);
             let ray = self.pixel_ray(camera, frame, x, y);
             if let Some(span) = ray.span(b) {

@@ -46,7 +46,6 @@ fn constant_slab_head_on_gives_beer_lambert() {
     // Pixels over the slab's interior see exactly the slab thickness.
     let frame = cam.frame();
     let (cx, cy, _) = cam.project(&frame, DVec3::new(19.5, 19.5, 10.0)).unwrap();
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     let a = img.pixel(cx as u32, cy as u32)[3];
     assert!(
         (a - expected).abs() <= one_sample * (1.0 - expected) + 1e-5,
@@ -74,7 +73,6 @@ fn render_by_bricks(vol: &Volume, grid: &BrickGrid, caster: &RayCaster<'_>, cam:
     let mut img = Image::new(cam.width, cam.height);
     let w = cam.width;
     for (i, px) in img.pixels_mut().iter_mut().enumerate() {
-        #[allow(clippy::cast_possible_truncation)]
         let (x, y) = (i as u32 % w, i as u32 / w);
         let ray = IndexRay::new(
             &cam.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
@@ -245,7 +243,6 @@ fn early_termination_stops_at_the_threshold() {
 
 /// The scalar sample loop as it was before the SIMD paths (unshaded): the definition every
 /// path of `RayCaster::march` must reproduce bit for bit.
-#[allow(clippy::cast_precision_loss)]
 fn march_reference<T: Voxel>(
     tri: &TrilinearSampler<'_, T>,
     cls: &Classifier,
@@ -344,7 +341,6 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
         with_voxels!(vol.data(), v => {
             let tri = TrilinearSampler::new(v, dims);
             for _ in 0..200 {
-                #[allow(clippy::cast_precision_loss)]
                 let ray = if rng.gen_bool(0.5) {
                     // A world ray through the anisotropic spacing.
                     let o = DVec3::from(std::array::from_fn::<f64, 3, _>(|a| {

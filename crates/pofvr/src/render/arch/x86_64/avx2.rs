@@ -27,14 +27,12 @@ use crate::render::sampler::TrilinearSampler;
 use crate::render::transfer_function::{ClassifierView, BIN_MAX};
 use crate::volume::Voxel;
 
-/// Whether this CPU runs the AVX2 loop (checked once; `POFVR_SIMD=sse2` turns it off, for
-/// comparisons).
+/// Whether this CPU runs the AVX2 loop (`POFVR_SIMD=sse2` turns it off, for comparisons).
+/// Asked once per ray caster, not per ray: the feature test is cached by the standard
+/// library, and the environment is read once per caster.
 pub(crate) fn available() -> bool {
-    static AVAILABLE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *AVAILABLE.get_or_init(|| {
-        std::env::var("POFVR_SIMD").map_or(true, |s| !s.eq_ignore_ascii_case("sse2"))
-            && std::arch::is_x86_feature_detected!("avx2")
-    })
+    std::env::var("POFVR_SIMD").map_or(true, |s| !s.eq_ignore_ascii_case("sse2"))
+        && std::arch::is_x86_feature_detected!("avx2")
 }
 
 /// Voxel types whose eight cell corners the AVX2 loop gathers for eight samples at once.
@@ -167,7 +165,6 @@ impl Gather8 for f32 {
         // SAFETY: every offset is a corner of the cell (caller).
         unsafe {
             let at = |off: usize| {
-                #[allow(clippy::cast_possible_truncation, clippy::cast_possible_wrap)]
                 let off = _mm256_set1_epi32(off as i32);
                 _mm256_i32gather_ps::<4>(p, _mm256_add_epi32(base, off))
             };
@@ -205,13 +202,7 @@ pub(crate) struct Acc {
 /// # Safety
 /// AVX2 is available and [`fits`] holds.
 #[target_feature(enable = "avx2")]
-#[allow(
-    clippy::cast_possible_truncation,
-    clippy::cast_possible_wrap,
-    clippy::cast_precision_loss,
-    clippy::cast_sign_loss,
-    clippy::too_many_arguments
-)]
+#[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn march<T: Gather8>(
     tri: &TrilinearSampler<'_, T>,
     cls: ClassifierView<'_>,
