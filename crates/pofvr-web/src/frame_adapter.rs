@@ -207,7 +207,7 @@ mod tests {
         let levels = load_pof_levels(&b, std::slice::from_ref(&a), &j).unwrap();
         // The shortest core comes first, the longer one as the deeper level.
         assert_eq!(levels.core_length(), 8.0);
-        assert_eq!(levels.deeper().map(OpacityBound::core_length), Some(12.0));
+        assert_eq!(levels.deeper(0).map(OpacityBound::core_length), Some(12.0));
         let Err(e) = load_pof_levels(&a, std::slice::from_ref(&a), &j) else {
             panic!("two levels of one core length must be an error");
         };
