@@ -29,6 +29,16 @@
 //! and lattice phases at once: a chord of length `ℓ` holds `⌊ℓ/step⌋` disjoint windows of
 //! length `step`, each containing exactly one sample, and each sample's extinction is at
 //! least the minimum extinction over the voxel cells the window can touch.
+//!
+//! ## Files
+//!
+//! - `settings`: the knobs of the precompute ([`PofSettings`], [`PofMethod`]).
+//! - `build`, `sampled`: the two builders; `reference`: the brute-force twin.
+//! - `table`: the table of records ([`PofTable`]); `meta`: what it was built for
+//!   ([`PofMeta`]); `error`: [`PofError`]; `file`, `encoding`, `cubic`: how it is stored.
+//! - `lookup`: run-time opacity along a direction or over a cone ([`PofMode`], Eq. 3);
+//!   `cache`: what lookups remember; `prefetch`: loading ahead what they will read.
+//! - `view_grid`: the angular grid of view cells ([`angles`], [`direction`]).
 
 mod build;
 mod cache;
