@@ -211,9 +211,9 @@ impl<'a> RayCaster<'a> {
 
     /// Marches every pixel of `rect` through the box `b`, compositing behind `out`
     /// (row-major over `rect`).
-    fn march_rect<T: Gather>(
+    fn march_rect<T: Gather, const COPY: bool>(
         &self,
-        tri: &TrilinearSampler<'_, T>,
+        tri: &TrilinearSampler<'_, T, COPY>,
         camera: &Camera,
         frame: &ViewFrame,
         rect: PixelRect,
@@ -236,9 +236,9 @@ impl<'a> RayCaster<'a> {
     /// Composites samples `range` of `ray` behind `acc` with whichever loop this caster
     /// runs ([`arch::march`]); returns the samples taken.
     #[inline(always)]
-    pub(super) fn march<T: Gather>(
+    pub(super) fn march<T: Gather, const COPY: bool>(
         &self,
-        tri: &TrilinearSampler<'_, T>,
+        tri: &TrilinearSampler<'_, T, COPY>,
         ray: &IndexRay,
         range: (i32, i32),
         acc: &mut [f32; 4],

@@ -11,8 +11,11 @@ use crate::volume::Voxel;
 /// subtraction is exact in f32 (the origin is an integer no larger than the position, both
 /// below 2²⁴), so the cell index and the fractions — and hence every sample — are bit for bit
 /// those of the whole volume, as long as the position stays inside the copy.
+///
+/// `COPY` says which: the whole volume's sampler skips the origin (zero) and what it
+/// guards, which the sampled POF builder's inner loop would otherwise pay for.
 #[derive(Clone, Copy)]
-pub(crate) struct TrilinearSampler<'v, T> {
+pub(crate) struct TrilinearSampler<'v, T, const COPY: bool = false> {
     pub(super) v: &'v [T],
     /// The whole volume's last index per axis (the clamp).
     pub(super) max: [f32; 3],
@@ -27,10 +30,13 @@ pub(crate) struct TrilinearSampler<'v, T> {
 }
 
 impl<'v, T: Voxel> TrilinearSampler<'v, T> {
+    /// Over the whole data `v` of `dims` voxels.
     pub(crate) fn new(v: &'v [T], dims: [usize; 3]) -> Self {
-        Self::local(v, dims, [0; 3], dims)
+        Self::over(v, dims, [0; 3], dims)
     }
+}
 
+impl<'v, T: Voxel> TrilinearSampler<'v, T, true> {
     /// Over `v`, the `dims` voxels from `origin` of a volume of `volume_dims` voxels.
     pub(crate) fn local(
         v: &'v [T],
@@ -38,6 +44,12 @@ impl<'v, T: Voxel> TrilinearSampler<'v, T> {
         origin: [usize; 3],
         volume_dims: [usize; 3],
     ) -> Self {
+        Self::over(v, dims, origin, volume_dims)
+    }
+}
+
+impl<'v, T: Voxel, const COPY: bool> TrilinearSampler<'v, T, COPY> {
+    fn over(v: &'v [T], dims: [usize; 3], origin: [usize; 3], volume_dims: [usize; 3]) -> Self {
         debug_assert_eq!(v.len(), dims[0] * dims[1] * dims[2]);
         let stride = [1, dims[0], dims[0] * dims[1]];
         TrilinearSampler {
@@ -59,9 +71,16 @@ impl<'v, T: Voxel> TrilinearSampler<'v, T> {
             // max/min rather than clamp: clamp's `min <= max` assertion is not hoisted.
             // The origin's subtraction is exact (see the type's comment); for a copy the
             // result is ≥ 0 while the position stays inside it.
-            let x = p[a].max(0.0).min(self.max[a]) - self.origin[a];
+            let x = p[a].max(0.0).min(self.max[a]);
+            let (x, c) = if COPY {
+                let x = x - self.origin[a];
+                (x, x.max(0.0))
+            } else {
+                // The origin is 0: x is ≥ 0 already.
+                (x, x)
+            };
             // The cell: ⌊min(x, last)⌋ = min(⌊x⌋, last) for x ≥ 0 and an integer `last`.
-            let c = x.max(0.0).min(self.last[a]);
+            let c = c.min(self.last[a]);
             // SAFETY: c is finite and in [0, last] after the max/min above (NaN positions
             // cannot occur: rays are finite and volumes hold finite values).
             let i = unsafe { c.to_int_unchecked::<u32>() } as usize;

@@ -9,9 +9,9 @@ use crate::volume::Voxel;
 /// Composites samples `k0..k1` of `ray` behind `acc` (premultiplied RGBA); returns the
 /// samples taken. A ray stops once its opacity reaches `p.ert`.
 #[inline(always)]
-pub(crate) fn march<T: Voxel>(
+pub(crate) fn march<T: Voxel, const COPY: bool>(
     p: &MarchParams<'_>,
-    tri: &TrilinearSampler<'_, T>,
+    tri: &TrilinearSampler<'_, T, COPY>,
     ray: &IndexRay,
     (k0, k1): (i32, i32),
     acc: &mut [f32; 4],
@@ -51,8 +51,8 @@ pub(crate) fn march<T: Voxel>(
 /// Ambient + diffuse factor with a headlight at index position `x` of a volume with voxel
 /// `spacing`; the gradient uses central differences at ±½ voxel so that it reads only the
 /// brick's ghost layer.
-fn lambert<T: Voxel>(
-    tri: &TrilinearSampler<'_, T>,
+fn lambert<T: Voxel, const COPY: bool>(
+    tri: &TrilinearSampler<'_, T, COPY>,
     spacing: [f32; 3],
     x: [f32; 3],
     dir: [f32; 3],

@@ -52,9 +52,9 @@ pub(crate) fn avx2_available() -> bool {
 /// loop performs, for every sample, the float operations of [`generic::march`], so they
 /// agree bit for bit and any of them may be taken.
 #[inline(always)]
-pub(crate) fn march<T: Gather>(
+pub(crate) fn march<T: Gather, const COPY: bool>(
     p: &MarchParams<'_>,
-    tri: &TrilinearSampler<'_, T>,
+    tri: &TrilinearSampler<'_, T, COPY>,
     ray: &IndexRay,
     range: (i32, i32),
     acc: &mut [f32; 4],

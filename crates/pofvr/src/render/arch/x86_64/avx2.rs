@@ -184,7 +184,7 @@ impl Gather8 for f32 {
 
 /// Whether [`march`] can take `tri`: 32-bit lane indices, and the unit x step the type's
 /// gather needs.
-pub(crate) fn fits<T: Gather8>(tri: &TrilinearSampler<'_, T>) -> bool {
+pub(crate) fn fits<T: Gather8, const COPY: bool>(tri: &TrilinearSampler<'_, T, COPY>) -> bool {
     tri.v.len() < i32::MAX as usize && (!T::UNIT_X || tri.step[0] == 1)
 }
 
@@ -203,8 +203,8 @@ pub(crate) struct Acc {
 /// AVX2 is available and [`fits`] holds.
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-pub(crate) unsafe fn march<T: Gather8>(
-    tri: &TrilinearSampler<'_, T>,
+pub(crate) unsafe fn march<T: Gather8, const COPY: bool>(
+    tri: &TrilinearSampler<'_, T, COPY>,
     cls: ClassifierView<'_>,
     step: f32,
     ert: f32,

@@ -10,9 +10,9 @@ use crate::render::sampler::TrilinearSampler;
 
 /// [`super::march`] without shading.
 #[inline(always)]
-pub(crate) fn march<T: Gather>(
+pub(crate) fn march<T: Gather, const COPY: bool>(
     p: &MarchParams<'_>,
-    tri: &TrilinearSampler<'_, T>,
+    tri: &TrilinearSampler<'_, T, COPY>,
     ray: &IndexRay,
     range: (i32, i32),
     acc: &mut [f32; 4],

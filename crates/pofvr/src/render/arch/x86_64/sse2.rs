@@ -92,27 +92,27 @@ impl GatherOne for u8 {
 /// Composites samples `k0..k1` of `ray` behind `acc`, unshaded, as
 /// [`super::super::generic::march`] does, bit for bit; returns the samples taken.
 #[inline(always)]
-pub(crate) fn march<T: GatherOne>(
+pub(crate) fn march<T: GatherOne, const COPY: bool>(
     p: &MarchParams<'_>,
-    tri: &TrilinearSampler<'_, T>,
+    tri: &TrilinearSampler<'_, T, COPY>,
     ray: &IndexRay,
     range: (i32, i32),
     acc: &mut [f32; 4],
 ) -> u64 {
     // Decided once per ray rather than per sample.
     if T::PAIRS && tri.step[0] == 1 {
-        march_with::<T, true>(p, tri, ray, range, acc)
+        march_with::<T, COPY, true>(p, tri, ray, range, acc)
     } else {
-        march_with::<T, false>(p, tri, ray, range, acc)
+        march_with::<T, COPY, false>(p, tri, ray, range, acc)
     }
 }
 
 /// [`march`] with the corner gather fixed: [`GatherOne::corners`] when `PAIRS` (then
 /// `T::PAIRS` and a unit x step), [`corners_generic`] otherwise.
 #[inline(always)]
-fn march_with<T: GatherOne, const PAIRS: bool>(
+fn march_with<T: GatherOne, const COPY: bool, const PAIRS: bool>(
     p: &MarchParams<'_>,
-    tri: &TrilinearSampler<'_, T>,
+    tri: &TrilinearSampler<'_, T, COPY>,
     ray: &IndexRay,
     (k0, k1): (i32, i32),
     acc: &mut [f32; 4],
