@@ -1,5 +1,5 @@
 //! The software ray caster: front-to-back emission–absorption with trilinear samples, over
-//! the whole volume or one box of it, on the one sample lattice of [`super::lattice`].
+//! the whole volume or one box of it, on the one sample lattice (see [`first_sample`]).
 
 use rayon::prelude::*;
 
