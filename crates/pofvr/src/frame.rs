@@ -12,7 +12,7 @@ use serde::Serialize;
 use crate::brick::{BrickError, BrickGrid, BrickId, BrickStore};
 use crate::comm::{CommError, Communicator, LocalCommunicator, Rank};
 use crate::composite::{CompositeError, Compositor, DirectSend, TileFragment, TileLayout};
-use crate::cull::{CoreLevels, CullMode, Culler, FrameBricks, OpacityBound};
+use crate::cull::{CoreLevels, CullMode, CullScratch, Culler, FrameBricks, OpacityBound};
 use crate::distribute::{BrickAssignment, Curve, DistributeError};
 use crate::error::{OutOfRange, Setting, Value};
 use crate::pof::{PofError, PofTable};
@@ -61,6 +61,8 @@ pub struct RenderJob {
     /// The last [`RenderJob::assignment`], by curve and rank count: every frame asks for
     /// it, and it only changes with the bricks and bases, which a job keeps.
     assignment_cache: std::sync::Mutex<Option<CachedAssignment>>,
+    /// The culler's opacity buffers, kept from frame to frame.
+    cull_scratch: CullScratch,
 }
 
 /// Validated before the volume is scanned, so a bad setting fails fast.
@@ -235,6 +237,7 @@ impl RenderJob {
             settings,
             bricks: None,
             assignment_cache: std::sync::Mutex::default(),
+            cull_scratch: CullScratch::new(),
         })
     }
 
@@ -646,6 +649,8 @@ fn rank_frame(
         weights,
         bounds,
         caster: &caster,
+        scratch: &job.cull_scratch,
+        skip_sub_bricks: true,
     };
     let culled = my_tile
         .map(|tile| culler.cull(camera, &bricks, tile))

@@ -24,13 +24,18 @@ use crate::volume::Volume;
 /// Measured core minima, one level per core length (shortest first, as
 /// [`super::CoreLevels`]).
 pub struct IdealPofs<'a> {
+    /// By core length, shortest first; never empty.
+    levels: Vec<IdealLevel<'a>>,
+}
+
+/// The measured minima for one core length.
+struct IdealLevel<'a> {
     volume: &'a Volume,
     grid: &'a BrickGrid,
     sampled: &'a SampledTf,
     step: f32,
     ert: f32,
     core: f32,
-    deeper: Option<Box<IdealPofs<'a>>>,
     /// Minima already measured, by brick, direction and weights (a frame asks once per
     /// brick; the key keeps later frames right).
     measured: Mutex<HashMap<Key, f32>>,
@@ -53,23 +58,55 @@ impl<'a> IdealPofs<'a> {
         core_lengths: &[f32],
     ) -> Option<Self> {
         let mut cores = core_lengths.to_vec();
-        cores.sort_by(|a, b| b.total_cmp(a));
-        cores.into_iter().fold(None, |deeper, core| {
-            Some(IdealPofs {
+        cores.sort_by(f32::total_cmp);
+        let levels: Vec<IdealLevel<'a>> = cores
+            .into_iter()
+            .map(|core| IdealLevel {
                 volume,
                 grid,
                 sampled,
                 step,
                 ert,
                 core,
-                deeper: deeper.map(Box::new),
                 measured: Mutex::new(HashMap::new()),
             })
-        })
+            .collect();
+        (!levels.is_empty()).then_some(IdealPofs { levels })
     }
 }
 
+/// The levels measure as their shortest core does; the longer ones are
+/// [`OpacityBound::deeper`].
 impl OpacityBound for IdealPofs<'_> {
+    fn core_length(&self) -> f32 {
+        self.levels[0].core_length()
+    }
+
+    fn opacity(&self, brick: BrickId, dir: DVec3, weights: &[f32], aggressive: bool) -> f32 {
+        self.levels[0].opacity(brick, dir, weights, aggressive)
+    }
+
+    fn opacity_cone(
+        &self,
+        brick: BrickId,
+        axis: DVec3,
+        half_angle: f64,
+        weights: &[f32],
+        aggressive: bool,
+    ) -> f32 {
+        self.levels[0].opacity_cone(brick, axis, half_angle, weights, aggressive)
+    }
+
+    fn deeper(&self, k: usize) -> Option<&dyn OpacityBound> {
+        self.levels.get(k + 1).map(|l| l as &dyn OpacityBound)
+    }
+
+    fn ert(&self) -> f32 {
+        self.levels[0].ert()
+    }
+}
+
+impl OpacityBound for IdealLevel<'_> {
     fn core_length(&self) -> f32 {
         self.core
     }
@@ -120,10 +157,6 @@ impl OpacityBound for IdealPofs<'_> {
         _aggressive: bool,
     ) -> f32 {
         0.0
-    }
-
-    fn deeper(&self) -> Option<&dyn OpacityBound> {
-        self.deeper.as_deref().map(|d| d as &dyn OpacityBound)
     }
 
     fn ert(&self) -> f32 {

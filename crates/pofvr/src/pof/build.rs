@@ -138,7 +138,6 @@ fn validate(s: &PofSettings) -> Result<(), PofError> {
     Ok(())
 }
 
-#[allow(clippy::too_many_lines, clippy::cast_possible_truncation)]
 pub(super) fn build(
     volume: &Volume,
     grid: &BrickGrid,
@@ -156,7 +155,6 @@ pub(super) fn build(
             format!("{} bases, but the sampled table has {p}", tf.bases.len()),
         ));
     }
-    #[allow(clippy::cast_precision_loss)]
     let core = settings
         .core_length
         .unwrap_or(grid.brick_size() as f32 / 2.0);
@@ -502,7 +500,6 @@ impl<'a> Ctx<'a> {
 
     /// Per-function opacity tables (`views[0] × views[1]`): p conservative POFs, then the
     /// sets (basis s's p−1 companions) when asked for.
-    #[allow(clippy::cast_precision_loss)]
     fn brick_tables(&self, measure: &mut dyn FnMut([f64; 3], &mut [f64])) -> Vec<Vec<f32>> {
         use std::f64::consts::{PI, TAU};
         let [n_rows, n_cols] = self.views;
@@ -542,7 +539,6 @@ impl<'a> Ctx<'a> {
                     }
                 }
                 for f in 0..funcs {
-                    #[allow(clippy::cast_possible_truncation)]
                     let a = ((1.0 - (-self.margin * m[f]).exp()) as f32).clamp(0.0, ALPHA_MAX);
                     tables[f][i * n_cols + j] = a;
                     if even {
@@ -566,11 +562,7 @@ impl<'a> Ctx<'a> {
         let mut best_patch = vec![(usize::MAX, 0, 0); p];
         let mut sums = vec![0f64; p];
         let n = bf.n.map(|x| x as f64);
-        let counts: [usize; 3] = std::array::from_fn(|a| {
-            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-            let k = (n[a] / self.pitch).ceil() as usize;
-            k
-        });
+        let counts: [usize; 3] = std::array::from_fn(|a| (n[a] / self.pitch).ceil() as usize);
         let hints = std::mem::take(&mut bf.hints);
         let mut visit =
             |bf: &mut BrickField, patch: (usize, usize, usize), best: &mut Vec<f64>| -> bool {
@@ -649,7 +641,6 @@ impl<'a> Ctx<'a> {
 
     /// The entry-face rectangle `[b0, b1] × [c0, c1]` of patches `ib0..ib1 × ic0..ic1` on
     /// face `a`.
-    #[allow(clippy::cast_precision_loss)]
     fn rect(
         &self,
         bf: &BrickField,
@@ -684,11 +675,6 @@ impl<'a> Ctx<'a> {
     /// Optical-depth lower bounds (per basis) of every core ray entering face `a` through
     /// `rect`; false when it holds no core ray. Stops early once no basis can improve on
     /// `best` (the sums are then partial but already ≥ `best`).
-    #[allow(
-        clippy::cast_possible_truncation,
-        clippy::cast_sign_loss,
-        clippy::cast_precision_loss
-    )]
     fn rect_sums(
         &self,
         bf: &mut BrickField,

@@ -9,7 +9,6 @@
 /// Number of coefficients.
 pub(crate) const COEFFS: usize = 10;
 
-#[allow(clippy::cast_precision_loss)]
 fn centre(views: [u32; 2], (i, j): (usize, usize)) -> (f64, f64) {
     let x = (i as f64 + 0.5) / f64::from(views[0]) * 2.0 - 1.0;
     let y = (j as f64 + 0.5) / f64::from(views[1]) * 2.0 - 1.0;
@@ -32,7 +31,6 @@ fn monomials(x: f64, y: f64) -> [f64; COEFFS] {
 }
 
 /// The cubic at the centre of cell `(i, j)`, clamped to [0, 1).
-#[allow(clippy::cast_possible_truncation)]
 pub(crate) fn eval_cell(co: &[f32; COEFFS], views: [u32; 2], cell: (usize, usize)) -> f32 {
     let (x, y) = centre(views, cell);
     let m = monomials(x, y);
@@ -41,7 +39,6 @@ pub(crate) fn eval_cell(co: &[f32; COEFFS], views: [u32; 2], cell: (usize, usize
 }
 
 /// Least-squares fit, then shifted down below every cell of `table`.
-#[allow(clippy::cast_possible_truncation)]
 pub(crate) fn fit_below(table: &[f32], views: [u32; 2]) -> [f32; COEFFS] {
     let (n, m) = (views[0] as usize, views[1] as usize);
     // Normal equations AᵀA c = Aᵀb in f64.

@@ -89,7 +89,6 @@ impl std::str::FromStr for Encoding {
 }
 
 /// Appends the encoding of `table` (row-major `views[0] × views[1]` opacities in [0, 1)).
-#[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
 pub(crate) fn encode(enc: Encoding, table: &[f32], views: [u32; 2], out: &mut Vec<u8>) {
     match enc {
         Encoding::Table => {
@@ -117,9 +116,7 @@ pub(crate) fn encode(enc: Encoding, table: &[f32], views: [u32; 2], out: &mut Ve
 
 /// `⌊α·q⌋`, and one less if float rounding of the decode would land above `α`.
 fn quantise(a: f32, q: f32) -> u32 {
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     let mut k = (a.clamp(0.0, 1.0) * q).floor() as u32;
-    #[allow(clippy::cast_precision_loss)]
     while k > 0 && k as f32 / q > a {
         k -= 1;
     }

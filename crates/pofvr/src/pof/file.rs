@@ -292,8 +292,7 @@ pub(crate) fn from_bytes(bytes: Bytes, source: String) -> Result<PofTable, PofEr
         data_offset,
         record_len,
         source,
-        uid: super::next_uid(),
-        borders: std::sync::Mutex::new(Vec::new()),
+        caches: super::cache::Caches::default(),
     })
 }
 

@@ -38,11 +38,7 @@ pub struct ReferenceProbe {
 /// and `ert`, and returns the least opacity over the pixels whose ray spans at least
 /// `core_length` (in `t` units) of the brick.
 #[must_use]
-#[allow(
-    clippy::too_many_arguments,
-    clippy::cast_possible_truncation,
-    clippy::cast_sign_loss
-)]
+#[allow(clippy::too_many_arguments)]
 pub fn core_min(
     volume: &Volume,
     grid: &BrickGrid,

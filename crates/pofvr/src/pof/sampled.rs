@@ -23,6 +23,7 @@
 
 use super::build::Ctx;
 use crate::brick::BrickId;
+use crate::render::sampler::TrilinearSampler;
 use crate::render::transfer_function::TF_BINS;
 use crate::render::SampledTf;
 use crate::volume::Voxel;
@@ -54,6 +55,17 @@ impl TauRows {
             lo,
             scale,
         }
+    }
+
+    /// The bin of value `v`, as the classifier computes it.
+    #[inline(always)]
+    fn bin(&self, v: f32) -> usize {
+        #[allow(clippy::manual_clamp)]
+        let b = ((v - self.lo) * self.scale)
+            .max(0.0)
+            .min((TF_BINS - 1) as f32);
+        // SAFETY: b is in [0, TF_BINS−1]; `max` maps NaN to 0.
+        unsafe { b.to_int_unchecked::<u32>() as usize }
     }
 }
 
@@ -119,11 +131,7 @@ impl Acc for Vec<f32> {
 /// the previous direction learnt.
 pub(super) struct SampledBrick {
     n: [usize; 3],
-    max: [f32; 3],
-    last: [f32; 3],
     vox: Vec<f32>,
-    sy: usize,
-    sz: usize,
     /// Where each basis's minimising ray crossed the centre plane at the previous
     /// direction: marched first, it sets a tight limit early so the other rays stop sooner.
     hints: Vec<[f64; 3]>,
@@ -146,8 +154,7 @@ impl SampledBrick {
             return None;
         }
         let dims = ctx.volume.dims();
-        let (sy, sz) = (n[0] + 1, (n[0] + 1) * (n[1] + 1));
-        let mut vox = Vec::with_capacity(sz * (n[2] + 1));
+        let mut vox = Vec::with_capacity((n[0] + 1) * (n[1] + 1) * (n[2] + 1));
         with_voxels!(ctx.volume.data(), v => {
             for z in lo[2]..=hi[2] {
                 for y in lo[1]..=hi[1] {
@@ -156,14 +163,9 @@ impl SampledBrick {
                 }
             }
         });
-        #[allow(clippy::cast_precision_loss)]
         Some(SampledBrick {
             n,
-            max: n.map(|x| x as f32),
-            last: n.map(|x| (x - 1) as f32),
             vox,
-            sy,
-            sz,
             hints: Vec::new(),
         })
     }
@@ -179,11 +181,6 @@ impl SampledBrick {
         }
     }
 
-    #[allow(
-        clippy::cast_possible_truncation,
-        clippy::cast_precision_loss,
-        clippy::too_many_lines
-    )]
     fn direction_with<A: Acc>(
         &mut self,
         ctx: &Ctx<'_>,
@@ -228,8 +225,8 @@ impl SampledBrick {
         let step = ctx.step;
         // Rays one step shorter than L are measured too: where the span changes fast with
         // position (grazing directions, near an edge) the grid may hold no ray whose span
-        // is just over L, and those shortest core rays are the lowest. On the 128³ head at
-        // pitch 1 this removed the only violations pof check found (excess 0.2).
+        // is just over L, and those shortest core rays are the lowest: leaving them out lets
+        // a lookup exceed the brute-force minimum that `pof check` measures.
         let core = ctx.core - step;
         let phases: Vec<f64> = (0..ctx.phases)
             .map(|k| k as f64 / ctx.phases as f64)
@@ -237,6 +234,7 @@ impl SampledBrick {
         let df = d.map(|x| x as f32);
         let hints = std::mem::take(&mut self.hints);
         let this = &*self;
+        let tri = this.sampler();
         let ray = |sw: &mut Sweep, acc: &mut A, i: i64, j: i64| -> bool {
             let (a, b) = (i as f64 * pitch, j as f64 * pitch);
             let q: [f64; 3] = std::array::from_fn(|k| c[k] + a * u[k] + b * w[k]);
@@ -266,10 +264,11 @@ impl SampledBrick {
                 let mut stopped = false;
                 for k in k0..k1 {
                     let t = ((k as f64 + ph) * step) as f32;
-                    let b = this.bin_at(
-                        tau,
-                        [qf[0] + t * df[0], qf[1] + t * df[1], qf[2] + t * df[2]],
-                    );
+                    let b = tau.bin(tri.sample([
+                        qf[0] + t * df[0],
+                        qf[1] + t * df[1],
+                        qf[2] + t * df[2],
+                    ]));
                     acc.add(&tau.rows, b);
                     if acc.all_ge(&sw.lim) {
                         stopped = true;
@@ -343,42 +342,10 @@ impl SampledBrick {
         }
     }
 
-    /// The bin of the trilinear sample at brick-local `x`, as the ray caster computes it.
-    #[inline(always)]
-    #[allow(clippy::cast_sign_loss, clippy::cast_possible_truncation)]
-    fn bin_at(&self, tau: &TauRows, x: [f32; 3]) -> usize {
-        let mut f = [0f32; 3];
-        let mut base = 0usize;
-        let stride = [1, self.sy, self.sz];
-        for a in 0..3 {
-            let v = x[a].max(0.0).min(self.max[a]);
-            let i = v.min(self.last[a]);
-            // SAFETY: i is finite and in [0, n−1] after the max/min above.
-            let i = unsafe { i.to_int_unchecked::<u32>() } as usize;
-            #[allow(clippy::cast_precision_loss)]
-            {
-                f[a] = v - i as f32;
-            }
-            base += i * stride[a];
-        }
-        let (sx, sy, sz) = (1, self.sy, self.sz);
-        debug_assert!(base + sx + sy + sz < self.vox.len());
-        // SAFETY: every axis index is at most n−1 and the buffer holds n+1 voxels per axis,
-        // so base plus any combination of the steps stays inside it.
-        let at = |i: usize| *unsafe { self.vox.get_unchecked(i) };
-        let c00 = at(base) + (at(base + sx) - at(base)) * f[0];
-        let c10 = at(base + sy) + (at(base + sy + sx) - at(base + sy)) * f[0];
-        let c01 = at(base + sz) + (at(base + sz + sx) - at(base + sz)) * f[0];
-        let c11 = at(base + sz + sy) + (at(base + sz + sy + sx) - at(base + sz + sy)) * f[0];
-        let c0 = c00 + (c10 - c00) * f[1];
-        let c1 = c01 + (c11 - c01) * f[1];
-        let v = c0 + (c1 - c0) * f[2];
-        #[allow(clippy::cast_precision_loss, clippy::manual_clamp)]
-        let b = ((v - tau.lo) * tau.scale)
-            .max(0.0)
-            .min((TF_BINS - 1) as f32);
-        // SAFETY: b is in [0, TF_BINS−1]; `max` maps NaN to 0.
-        unsafe { b.to_int_unchecked::<u32>() as usize }
+    /// The trilinear sampler over the brick's voxels, in brick-local coordinates: the
+    /// ray caster's own, so that a sample here is the renderer's sample, bit for bit.
+    fn sampler(&self) -> TrilinearSampler<'_, f32> {
+        TrilinearSampler::new(&self.vox, self.n.map(|x| x + 1))
     }
 }
 

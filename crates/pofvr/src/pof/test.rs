@@ -3,9 +3,11 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
 use super::reference::{core_min, ReferenceProbe};
+use super::view_grid::{border_cells, cell_of};
 use super::*;
-use crate::brick::BrickGrid;
+use crate::brick::{BrickGrid, BrickId};
 use crate::render::families;
+use crate::render::{SampledTf, TransferFunction};
 use crate::volume::phantom::Phantom;
 use crate::volume::{Volume, VoxelData, Voxels};
 
@@ -218,7 +220,6 @@ fn check_conservative(
             ratio += od(a) / od(m);
         }
     }
-    #[allow(clippy::cast_precision_loss)]
     (compared, ratio / compared.max(1) as f64)
 }
 
@@ -259,7 +260,7 @@ fn conservative_mode_never_exceeds_brute_force_for_random_weights() {
     eprintln!("random weights: {n} views, mean lookup/brute-force optical depth {ratio:.3}");
     assert!(n > 20);
     // The bound must be useful, not just ≤: on average it keeps a share of the depth
-    // (measured 0.21 on this phantom; thin shells and ventricle edges erode to 0).
+    // (thin shells and ventricle edges erode to 0, so the share is well below 1).
     assert!(ratio > 0.15, "mean ratio {ratio}");
 }
 
@@ -588,19 +589,30 @@ fn interrupted_build_resumes_from_the_partial_file() {
     assert_eq!(third.meta().views, [10, 10]);
 }
 
+/// The folder of real volumes: `$POFVR_DATA` if set, else `../shared/data` beside the
+/// workspace.
+fn data_dir() -> std::path::PathBuf {
+    std::env::var_os("POFVR_DATA").map_or_else(
+        || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+        std::path::PathBuf::from,
+    )
+}
+
 #[test]
+#[ignore = "needs ../shared/data (real volumes)"]
 fn real_anisotropic_ct_lookups_never_exceed_brute_force() {
-    // Optional: the catalogue's quarter-resolution CT head (i16, spacing 3.2×3.2×1.5 mm),
-    // the case where index and world directions differ.
-    let path =
-        std::path::Path::new("/work/shared/data/headsq_quarter/headsq_quarter_64x64x93_int16.raw");
-    if !path.exists() {
-        eprintln!("skipped: {} is not present", path.display());
-        return;
-    }
+    // The catalogue's quarter-resolution CT head (i16, spacing 3.2×3.2×1.5 mm), the case
+    // where index and world directions differ.
+    let path = data_dir().join("headsq_quarter/headsq_quarter_64x64x93_int16.raw");
+    assert!(
+        path.exists(),
+        "needs real data: {} is not present (set POFVR_DATA to the folder of real volumes, \
+         or leave this test ignored)",
+        path.display()
+    );
     let mut spec = crate::volume::RawSpec::new([64, 64, 93], crate::volume::DataType::I16);
     spec.spacing = [3.2, 3.2, 1.5];
-    let volume = crate::volume::raw::open(path, &spec).unwrap();
+    let volume = crate::volume::raw::open(&path, &spec).unwrap();
     let tf = TransferFunction::from_json(
         r#"{"bases":[{"name":"head","opacity":[[300,0],[500,0.05],[4000,0.05]]},
                      {"name":"bone","opacity":[[1400,0],[1800,0.3],[4000,0.3]]}],
@@ -656,8 +668,8 @@ fn sampled_lookup_never_exceeds_brute_force_in_every_encoding() {
         "sampled, random weights: {n} views, mean lookup/brute-force optical depth {ratio:.3}"
     );
     assert!(n > 30);
-    // Measured, not bounded: it keeps about twice the bound's share of the true depth
-    // (measured 0.44 against the bound's 0.21 on this phantom at 12×12 views).
+    // Measured, not bounded: it keeps well over the bound's share of the true depth (the
+    // bound's test above asks for 0.15).
     assert!(ratio > 0.35, "mean ratio {ratio}");
 }
 
@@ -685,7 +697,6 @@ fn sampled_table_is_tighter_than_the_bound() {
             }
         }
     }
-    #[allow(clippy::cast_precision_loss)]
     let share = at_least as f64 / cells as f64;
     eprintln!(
         "{cells} non-zero cells: mean bound {:.4}, mean sampled {:.4}; sampled ≥ bound in {:.1}%, > 1.5× in {above}",
@@ -693,10 +704,10 @@ fn sampled_table_is_tighter_than_the_bound() {
         sum_s / f64::from(cells),
         100.0 * share
     );
-    // Measured 0.219 against 0.115 over 932 cells (12×12 views: the coarse cells cost the
-    // sampled method more than the bound). Where the bound is already tight (uniform
-    // material) the sampled method's smaller margin leaves it a little below: 77 % of cells
-    // are at least the bound.
+    // The sampled values are well above the bound on average (12×12 views: coarse cells
+    // cost the sampled method more than the bound). Where the bound is already tight
+    // (uniform material) the sampled method's smaller margin leaves it a little below, so
+    // only most cells, not all, are at least the bound.
     assert!(cells > 500);
     assert!(sum_s >= 1.7 * sum_b, "sampled {sum_s} vs bound {sum_b}");
     assert!(share > 0.7, "sampled ≥ bound in only {share}");

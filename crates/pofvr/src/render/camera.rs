@@ -350,7 +350,6 @@ impl PixelRect {
     /// The pixels whose centres lie in the continuous rectangle, widened by a hair so that
     /// centres on the edge are kept; `None` when empty.
     #[must_use]
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     pub fn covering(x0: f64, y0: f64, x1: f64, y1: f64, width: u32, height: u32) -> Option<Self> {
         let eps = 1e-3;
         let fx0 = (x0 - 0.5 - eps).ceil().max(0.0);

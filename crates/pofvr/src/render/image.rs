@@ -66,7 +66,6 @@ impl Image {
     /// 8-bit RGBA with straight (un-premultiplied) colour, as PNG expects; over black it
     /// shows exactly the premultiplied colour.
     #[must_use]
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     pub fn to_rgba8(&self) -> Vec<u8> {
         let q = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
         let mut out = Vec::with_capacity(self.pixels.len() * 4);
@@ -170,14 +169,12 @@ impl Image {
             .zip(&other.pixels)
             .flat_map(|(a, b)| (0..4).map(move |c| f64::from(a[c] - b[c]).powi(2)))
             .sum();
-        #[allow(clippy::cast_precision_loss)]
         Some((s / (self.pixels.len() * 4).max(1) as f64).sqrt())
     }
 
     /// Mean alpha.
     #[must_use]
     pub fn mean_alpha(&self) -> f64 {
-        #[allow(clippy::cast_precision_loss)]
         let n = self.pixels.len().max(1) as f64;
         self.pixels.iter().map(|p| f64::from(p[3])).sum::<f64>() / n
     }

@@ -1,11 +1,19 @@
 //! Stage 5: cameras, transfer functions and the ray caster.
+//!
+//! - `camera`, `image`, `transfer_function` (and `families`, the built-in ones).
+//! - `lattice`: index rays and the one sample lattice every box of a ray is sampled on.
+//! - `sampler`: the trilinear sampler, the one definition of a sample's value.
+//! - `ray_caster`: whole-volume and per-box renders ([`RayCaster`]).
+//! - `arch`: the sample loops, `arch/generic.rs` the scalar reference (and shading),
+//!   `arch/x86_64/{sse2,avx2}.rs` the vector loops that equal it bit for bit.
 
-#[cfg(target_arch = "x86_64")]
-mod avx2;
+mod arch;
 pub mod camera;
 pub mod families;
 pub mod image;
+mod lattice;
 pub mod ray_caster;
+pub(crate) mod sampler;
 #[cfg(test)]
 mod test;
 pub mod transfer_function;

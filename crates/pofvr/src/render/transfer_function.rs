@@ -14,7 +14,6 @@ use crate::brick::ValueRange;
 /// Number of lookup-table bins over the volume's value range.
 pub const TF_BINS: usize = 4096;
 
-#[allow(clippy::cast_precision_loss)]
 pub(crate) const BIN_MAX: f32 = (TF_BINS - 1) as f32;
 
 /// Alpha of a unit step is capped here so that τ stays finite.
@@ -300,9 +299,7 @@ impl SampledTf {
     pub fn new(tf: &TransferFunction, domain: ValueRange) -> Self {
         let lo = domain.min;
         let width = (domain.max - domain.min).max(f32::MIN_POSITIVE * 1e6);
-        #[allow(clippy::cast_precision_loss)]
         let scale = TF_BINS as f32 / width;
-        #[allow(clippy::cast_precision_loss)]
         let centre = |b: usize| lo + (b as f32 + 0.5) / scale;
         let tau: Vec<Vec<f32>> = tf
             .bases
@@ -364,11 +361,6 @@ impl SampledTf {
     /// The bin of value `v`.
     #[inline(always)]
     #[must_use]
-    #[allow(
-        clippy::cast_possible_truncation,
-        clippy::cast_sign_loss,
-        clippy::cast_precision_loss
-    )]
     pub fn bin(&self, v: f32) -> usize {
         (((v - self.lo) * self.scale).max(0.0) as usize).min(TF_BINS - 1)
     }
@@ -480,7 +472,6 @@ pub(crate) struct ClassifierView<'c> {
 impl ClassifierView<'_> {
     /// Premultiplied RGBA of one step at value `v`.
     #[inline(always)]
-    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
     pub(crate) fn sample(self, v: f32) -> [f32; 4] {
         // Not clamp: `max` turns a NaN into 0, which keeps the unchecked cast sound.
         #[allow(clippy::manual_clamp)]

@@ -277,7 +277,7 @@ fn pof_files_load_checked_and_name_a_bad_file() {
     // The shortest core comes first, the longer one as the deeper level.
     let bound = s.pofs().unwrap().bound();
     assert_eq!(bound.core_length(), 8.0);
-    assert_eq!(bound.deeper().map(OpacityBound::core_length), Some(12.0));
+    assert_eq!(bound.deeper(0).map(OpacityBound::core_length), Some(12.0));
     let e = scene(32)
         .load_pof_levels(&a, std::slice::from_ref(&a))
         .unwrap_err();

@@ -3,7 +3,7 @@
 //! A ray's samples are independent of each other until they are composited, so the
 //! positions, cell indices, corner gathers, trilinear weights, classification bins and
 //! opacities of eight consecutive samples are computed lane-wise, with exactly the float
-//! operations of the scalar definition (`RayCaster::march_scalar`: no fused multiply–adds),
+//! operations of the scalar definition ([`super::super::generic::march`]: no fused multiply–adds),
 //! and only the composite, which carries the accumulator from sample to sample, runs one
 //! sample at a time. Eight samples that all classify as transparent leave the accumulator
 //! untouched and are skipped as a whole: that is most of the samples in the empty space
@@ -22,18 +22,17 @@ use std::arch::x86_64::{
     _mm_storeu_ps,
 };
 
-use super::ray_caster::{IndexRay, Trilinear};
-use super::transfer_function::{ClassifierView, BIN_MAX};
+use crate::render::lattice::IndexRay;
+use crate::render::sampler::TrilinearSampler;
+use crate::render::transfer_function::{ClassifierView, BIN_MAX};
 use crate::volume::Voxel;
 
-/// Whether this CPU runs the AVX2 loop (checked once; `POFVR_SIMD=sse2` turns it off, for
-/// comparisons).
+/// Whether this CPU runs the AVX2 loop (`POFVR_SIMD=sse2` turns it off, for comparisons).
+/// Asked once per ray caster, not per ray: the feature test is cached by the standard
+/// library, and the environment is read once per caster.
 pub(crate) fn available() -> bool {
-    static AVAILABLE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *AVAILABLE.get_or_init(|| {
-        std::env::var("POFVR_SIMD").map_or(true, |s| !s.eq_ignore_ascii_case("sse2"))
-            && std::arch::is_x86_feature_detected!("avx2")
-    })
+    std::env::var("POFVR_SIMD").map_or(true, |s| !s.eq_ignore_ascii_case("sse2"))
+        && std::arch::is_x86_feature_detected!("avx2")
 }
 
 /// Voxel types whose eight cell corners the AVX2 loop gathers for eight samples at once.
@@ -55,7 +54,8 @@ pub(crate) trait Gather8: Voxel {
 
 /// The four 32-bit words at elements `base`, `base + sy`, `base + sz`, `base + sy + sz`,
 /// lane by lane: a corner and its x neighbour for 16-bit voxels, and two more bytes for
-/// 8-bit ones. Scalar loads: on the CPUs measured, faster than `vpgatherdd`.
+/// 8-bit ones. Scalar loads rather than `vpgatherdd`, which on common cores is slower
+/// than eight loads.
 ///
 /// # Safety
 /// Every word lies inside `v`'s allocation.
@@ -165,7 +165,6 @@ impl Gather8 for f32 {
         // SAFETY: every offset is a corner of the cell (caller).
         unsafe {
             let at = |off: usize| {
-                #[allow(clippy::cast_possible_truncation, clippy::cast_possible_wrap)]
                 let off = _mm256_set1_epi32(off as i32);
                 _mm256_i32gather_ps::<4>(p, _mm256_add_epi32(base, off))
             };
@@ -185,7 +184,7 @@ impl Gather8 for f32 {
 
 /// Whether [`march`] can take `tri`: 32-bit lane indices, and the unit x step the type's
 /// gather needs.
-pub(crate) fn fits<T: Gather8>(tri: &Trilinear<'_, T>) -> bool {
+pub(crate) fn fits<T: Gather8, const COPY: bool>(tri: &TrilinearSampler<'_, T, COPY>) -> bool {
     tri.v.len() < i32::MAX as usize && (!T::UNIT_X || tri.step[0] == 1)
 }
 
@@ -196,22 +195,16 @@ pub(crate) struct Acc {
     pub(crate) a3: f32,
 }
 
-/// Composites samples `k0..k1` of `ray` into `acc` as `RayCaster::march_scalar` does, bit
+/// Composites samples `k0..k1` of `ray` into `acc` as [`super::super::generic::march`] does, bit
 /// for bit; returns the samples taken and, when a cell near the end of the data would have
 /// made a gather read past it, the sample index to go on from with another path.
 ///
 /// # Safety
 /// AVX2 is available and [`fits`] holds.
 #[target_feature(enable = "avx2")]
-#[allow(
-    clippy::cast_possible_truncation,
-    clippy::cast_possible_wrap,
-    clippy::cast_precision_loss,
-    clippy::cast_sign_loss,
-    clippy::too_many_arguments
-)]
-pub(crate) unsafe fn march<T: Gather8>(
-    tri: &Trilinear<'_, T>,
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn march<T: Gather8, const COPY: bool>(
+    tri: &TrilinearSampler<'_, T, COPY>,
     cls: ClassifierView<'_>,
     step: f32,
     ert: f32,

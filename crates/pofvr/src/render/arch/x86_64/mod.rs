@@ -1,0 +1,32 @@
+//! The x86_64 sample loops: AVX2 where the CPU has it, SSE2 (the baseline) otherwise and
+//! for the last cells of the data, where the eight-lane gather would read past the end.
+
+pub(crate) mod avx2;
+pub(crate) mod sse2;
+
+use super::{Gather, MarchParams};
+use crate::render::lattice::IndexRay;
+use crate::render::sampler::TrilinearSampler;
+
+/// [`super::march`] without shading.
+#[inline(always)]
+pub(crate) fn march<T: Gather, const COPY: bool>(
+    p: &MarchParams<'_>,
+    tri: &TrilinearSampler<'_, T, COPY>,
+    ray: &IndexRay,
+    range: (i32, i32),
+    acc: &mut [f32; 4],
+) -> u64 {
+    if p.avx2 && avx2::fits(tri) {
+        let mut a = avx2::load(acc);
+        // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked.
+        let (n, rest) = unsafe { avx2::march(tri, p.cls, p.step, p.ert, ray, range, &mut a) };
+        avx2::store(&a, acc);
+        return match rest {
+            None => n,
+            // The last cells of the data: the one-sample loop finishes the ray.
+            Some(k) => n + sse2::march(p, tri, ray, (k, range.1), acc),
+        };
+    }
+    sse2::march(p, tri, ray, range, acc)
+}

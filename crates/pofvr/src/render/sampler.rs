@@ -1,0 +1,108 @@
+//! The trilinear sampler: the one definition of a sample's value, shared by the scalar
+//! ray caster, its shading and the sampled POF builder; the SIMD loops compute the same
+//! float operations lane-wise.
+
+use crate::volume::Voxel;
+
+/// Trilinear interpolation with positions clamped to the volume, over the whole volume or
+/// over a copy of one box of it (a [`crate::brick::BrickCopy`]).
+///
+/// A copy is addressed by subtracting its integer origin from the clamped position: that
+/// subtraction is exact in f32 (the origin is an integer no larger than the position, both
+/// below 2²⁴), so the cell index and the fractions — and hence every sample — are bit for bit
+/// those of the whole volume, as long as the position stays inside the copy.
+///
+/// `COPY` says which: the whole volume's sampler skips the origin (zero) and what it
+/// guards, which the sampled POF builder's inner loop would otherwise pay for.
+#[derive(Clone, Copy)]
+pub(crate) struct TrilinearSampler<'v, T, const COPY: bool = false> {
+    pub(super) v: &'v [T],
+    /// The whole volume's last index per axis (the clamp).
+    pub(super) max: [f32; 3],
+    /// Index of voxel `v[0]` in the volume.
+    pub(super) origin: [f32; 3],
+    /// Last cell of the copy per axis.
+    pub(super) last_cell: [usize; 3],
+    /// `last_cell` as floats (exact: cells are below 2²⁴ per axis).
+    last: [f32; 3],
+    pub(super) stride: [usize; 3],
+    pub(super) step: [usize; 3],
+}
+
+impl<'v, T: Voxel> TrilinearSampler<'v, T> {
+    /// Over the whole data `v` of `dims` voxels.
+    pub(crate) fn new(v: &'v [T], dims: [usize; 3]) -> Self {
+        Self::over(v, dims, [0; 3], dims)
+    }
+}
+
+impl<'v, T: Voxel> TrilinearSampler<'v, T, true> {
+    /// Over `v`, the `dims` voxels from `origin` of a volume of `volume_dims` voxels.
+    pub(crate) fn local(
+        v: &'v [T],
+        dims: [usize; 3],
+        origin: [usize; 3],
+        volume_dims: [usize; 3],
+    ) -> Self {
+        Self::over(v, dims, origin, volume_dims)
+    }
+}
+
+impl<'v, T: Voxel, const COPY: bool> TrilinearSampler<'v, T, COPY> {
+    fn over(v: &'v [T], dims: [usize; 3], origin: [usize; 3], volume_dims: [usize; 3]) -> Self {
+        debug_assert_eq!(v.len(), dims[0] * dims[1] * dims[2]);
+        let stride = [1, dims[0], dims[0] * dims[1]];
+        TrilinearSampler {
+            v,
+            max: volume_dims.map(|d| (d - 1) as f32),
+            origin: origin.map(|o| o as f32),
+            last_cell: dims.map(|d| d.saturating_sub(2)),
+            last: dims.map(|d| d.saturating_sub(2) as f32),
+            stride,
+            step: std::array::from_fn(|a| if dims[a] > 1 { stride[a] } else { 0 }),
+        }
+    }
+
+    #[inline(always)]
+    pub(crate) fn sample(&self, p: [f32; 3]) -> f32 {
+        let mut base = 0usize;
+        let mut f = [0f32; 3];
+        for a in 0..3 {
+            // max/min rather than clamp: clamp's `min <= max` assertion is not hoisted.
+            // The origin's subtraction is exact (see the type's comment); for a copy the
+            // result is ≥ 0 while the position stays inside it.
+            let x = p[a].max(0.0).min(self.max[a]);
+            let (x, c) = if COPY {
+                let x = x - self.origin[a];
+                (x, x.max(0.0))
+            } else {
+                // The origin is 0: x is ≥ 0 already.
+                (x, x)
+            };
+            // The cell: ⌊min(x, last)⌋ = min(⌊x⌋, last) for x ≥ 0 and an integer `last`.
+            let c = c.min(self.last[a]);
+            // SAFETY: c is finite and in [0, last] after the max/min above (NaN positions
+            // cannot occur: rays are finite and volumes hold finite values).
+            let i = unsafe { c.to_int_unchecked::<u32>() } as usize;
+            f[a] = x - i as f32;
+            // (x is the unit stride: a constant, not a load and a multiply.)
+            base += if a == 0 { i } else { i * self.stride[a] };
+        }
+        let [sx, sy, sz] = self.step;
+        debug_assert!(
+            base + sx + sy + sz < self.v.len(),
+            "{base} out of {}",
+            self.v.len()
+        );
+        // SAFETY: every axis index is clamped to [0, dims-2] (or 0 with a zero step on a
+        // one-voxel axis), so base plus any combination of steps stays inside the volume.
+        let at = |i: usize| unsafe { self.v.get_unchecked(i) }.to_f32();
+        let c00 = at(base) + (at(base + sx) - at(base)) * f[0];
+        let c10 = at(base + sy) + (at(base + sy + sx) - at(base + sy)) * f[0];
+        let c01 = at(base + sz) + (at(base + sz + sx) - at(base + sz)) * f[0];
+        let c11 = at(base + sz + sy) + (at(base + sz + sy + sx) - at(base + sz + sy)) * f[0];
+        let c0 = c00 + (c10 - c00) * f[1];
+        let c1 = c01 + (c11 - c01) * f[1];
+        c0 + (c1 - c0) * f[2]
+    }
+}
