@@ -36,13 +36,83 @@ fn message(e: &anyhow::Error) -> String {
         if !msg.is_empty() {
             msg.push_str(": ");
         }
-        if let Some(flag) = flag_of(cause) {
+        if let Some(flag) = flag_of(cause).or_else(|| flag_of_value(cause)) {
             msg.push_str(flag);
             msg.push_str(": ");
         }
         msg.push_str(&text);
+        if let Some(hint) = hint_of(cause) {
+            msg.push_str(hint);
+        }
     }
     msg
+}
+
+/// What to do about a library error, in the CLI's terms (the library names no flags).
+fn hint_of(cause: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
+    use pofvr::pof::PofError;
+    use pofvr::volume::VolumeError;
+    let pof = cause
+        .downcast_ref::<PofError>()
+        .or_else(|| match cause.downcast_ref() {
+            Some(pofvr::Error::Pof(p)) => Some(p),
+            _ => None,
+        });
+    if let Some(PofError::NoSets { .. }) = pof {
+        return Some(" (rebuild it with `pofvr pof build --sets`)");
+    }
+    let volume = cause
+        .downcast_ref::<VolumeError>()
+        .or_else(|| match cause.downcast_ref() {
+            Some(pofvr::Error::Volume(v)) => Some(v),
+            _ => None,
+        });
+    if let Some(VolumeError::UnknownFormat { .. }) = volume {
+        return Some(" (a raw file takes --dims and --dtype)");
+    }
+    None
+}
+
+/// The flag of a library error that is about a value set by a flag other than the
+/// settings of [`flag_of`]: weights, owners per brick, POF levels.
+fn flag_of_value(cause: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
+    use pofvr::distribute::DistributeError;
+    use pofvr::pof::PofError;
+    use pofvr::render::TfError;
+    let tf = cause
+        .downcast_ref::<TfError>()
+        .or_else(|| match cause.downcast_ref() {
+            Some(pofvr::Error::Tf(t)) => Some(t),
+            _ => None,
+        });
+    if let Some(TfError::Field { file, .. }) = tf {
+        if file == pofvr::render::transfer_function::GIVEN_WEIGHTS {
+            return Some("--weights");
+        }
+    }
+    let dist = cause
+        .downcast_ref::<DistributeError>()
+        .or_else(|| match cause.downcast_ref() {
+            Some(pofvr::Error::Distribute(d)) => Some(d),
+            _ => None,
+        });
+    if let Some(DistributeError::BadReplicas { .. }) = dist {
+        return Some("--replicas");
+    }
+    let pof = cause
+        .downcast_ref::<PofError>()
+        .or_else(|| match cause.downcast_ref() {
+            Some(pofvr::Error::Pof(p)) => Some(p),
+            _ => None,
+        });
+    if let Some(PofError::Setting {
+        field: "core_length",
+        ..
+    }) = pof
+    {
+        return Some("--pof-level");
+    }
+    None
 }
 
 /// The flag of the setting a library error is about: the library names settings in words
@@ -99,5 +169,60 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Bench(args::BenchCommand::Cull(a)) => cmd::bench::cull(&a, &ui),
         args::Command::Bench(args::BenchCommand::Pof(a)) => cmd::pof::bench(&a, &ui),
         args::Command::Pof(c) => cmd::pof::run(&c, &ui),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::message;
+    use pofvr::distribute::DistributeError;
+    use pofvr::pof::PofError;
+    use pofvr::volume::VolumeError;
+
+    #[test]
+    fn library_errors_gain_the_flag_or_hint_of_the_command_line() {
+        let e = anyhow::Error::new(pofvr::Error::from(DistributeError::BadReplicas {
+            replicas: 4,
+            ranks: 3,
+        }));
+        assert_eq!(
+            message(&e),
+            "--replicas: owners per brick: got 4, expected 1..=3 (the number of ranks)"
+        );
+        let e = anyhow::Error::new(PofError::NoSets {
+            file: "a.pof".into(),
+        });
+        assert!(message(&e).ends_with("(rebuild it with `pofvr pof build --sets`)"));
+        let e = anyhow::Error::new(VolumeError::UnknownFormat {
+            file: "v.xyz".into(),
+        });
+        assert!(
+            message(&e).contains("--dims and --dtype"),
+            "{}",
+            message(&e)
+        );
+        let mut tf =
+            pofvr::render::families::for_phantom(pofvr::volume::phantom::Phantom::SheppLogan);
+        let e = anyhow::Error::new(tf.set_weights(vec![1.0]).unwrap_err());
+        assert!(message(&e).starts_with("--weights: "), "{}", message(&e));
+        // Library messages themselves name no flag.
+        for e in [
+            pofvr::Error::from(DistributeError::BadReplicas {
+                replicas: 4,
+                ranks: 3,
+            })
+            .to_string(),
+            PofError::NoSets {
+                file: "a.pof".into(),
+            }
+            .to_string(),
+            VolumeError::UnknownFormat {
+                file: "v.xyz".into(),
+            }
+            .to_string(),
+            tf.set_weights(vec![1.0]).unwrap_err().to_string(),
+        ] {
+            assert!(!e.contains("--"), "{e}");
+        }
     }
 }

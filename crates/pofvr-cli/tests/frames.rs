@@ -163,6 +163,6 @@ fn replicas_give_the_same_frame_and_more_replicas_than_ranks_are_refused() {
     let o = render("3", "4", "bad.raw");
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("--replicas 4"), "{err}");
+    assert!(err.contains("--replicas") && err.contains("got 4"), "{err}");
     assert!(!d.join("bad.raw").exists());
 }

@@ -79,7 +79,7 @@ impl CoreLevels {
             .find(|w| w[0].core_length() == w[1].core_length())
         {
             return Err(format!(
-                "two POF files with core length {}: each --pof-level needs its own --core-length",
+                "two POF tables with core length {}: each level needs its own core length",
                 w[0].core_length()
             ));
         }

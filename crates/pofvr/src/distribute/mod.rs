@@ -73,7 +73,7 @@ pub enum DistributeError {
     #[error("got {0} ranks, expected 1..={max}", max = u32::MAX)]
     BadRanks(usize),
     /// More owners per brick than ranks, or none.
-    #[error("--replicas {replicas} must be in 1..={ranks} (the number of ranks)")]
+    #[error("owners per brick: got {replicas}, expected 1..={ranks} (the number of ranks)")]
     BadReplicas {
         /// Owners per brick asked for.
         replicas: usize,

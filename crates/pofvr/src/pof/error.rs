@@ -57,7 +57,7 @@ pub enum PofError {
         expected: String,
     },
     /// POF sets were asked for but the table has none.
-    #[error("{file}: the table has no POF sets (build it with --sets)")]
+    #[error("{file}: the table has no POF sets (they are built only when asked for)")]
     NoSets {
         /// The file.
         file: String,

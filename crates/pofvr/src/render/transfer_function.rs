@@ -40,6 +40,10 @@ pub struct TransferFunction {
     pub color: Vec<[f32; 4]>,
 }
 
+/// The source that [`TfError::Field`] names for weights given apart from the family's file
+/// ([`TransferFunction::set_weights`]); front ends match it to say where they came from.
+pub const GIVEN_WEIGHTS: &str = "the weights given";
+
 /// A transfer-function file or value is invalid.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -195,12 +199,12 @@ impl TransferFunction {
         Ok(())
     }
 
-    /// Replaces the weights after validating them (`--weights` on the command line).
+    /// Replaces the weights after validating them.
     ///
     /// # Errors
-    /// As [`TransferFunction::validate_weights`], naming `--weights`.
+    /// As [`TransferFunction::validate_weights`], naming [`GIVEN_WEIGHTS`] as the source.
     pub fn set_weights(&mut self, weights: Vec<f32>) -> Result<(), TfError> {
-        self.validate_weights(&weights, "--weights")?;
+        self.validate_weights(&weights, GIVEN_WEIGHTS)?;
         self.weights = weights;
         Ok(())
     }

@@ -68,7 +68,7 @@ pub enum VolumeError {
         why: String,
     },
     /// Extension not recognised and no raw layout given.
-    #[error("{file}: unknown volume format: use .nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or give --dims and --dtype for a raw file")]
+    #[error("{file}: unknown volume format: use .nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or give a raw file's dimensions and voxel type")]
     UnknownFormat {
         /// The file.
         file: String,

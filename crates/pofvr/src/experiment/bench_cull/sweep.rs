@@ -113,7 +113,7 @@ pub fn sweep(
     (w, h): (u32, u32),
     progress: &dyn Progress,
 ) -> Result<Vec<SweepView>, ExperimentError> {
-    progress.begin("bench cull --sweep", views.len() as u64);
+    progress.begin("view sweep", views.len() as u64);
     let mut out = Vec::with_capacity(views.len());
     for &[az, el] in views {
         let cam = Camera::orbit(&job.volume, az, el, w, h, Projection::Orthographic);
