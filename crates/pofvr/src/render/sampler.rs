@@ -149,15 +149,16 @@ impl Cell {
     /// The derivative of [`Cell::value`] with respect to the index position: the
     /// gradient of the trilinear interpolant itself, in value per voxel.
     ///
-    /// Shading takes this gradient rather than central differences because it reads only
-    /// the eight corners the sample has already gathered (a handful of subtractions and
-    /// lerps per sample, lane-wise in the vector loops), where central differences need
-    /// the 32 voxels around the cell or six more trilinear samples, and because it needs
-    /// no voxel outside the sample's cell, so a brick's private copy shades with exactly
-    /// the voxels it samples. The interpolant is continuous, its gradient within a cell
-    /// is smooth, and across a face only the component normal to that face may jump: on
-    /// volumes whose features span several voxels that is below what a headlight's
-    /// Lambert term shows.
+    /// Shading takes this gradient rather than central differences, for cost and for
+    /// what it reads. It comes from the eight corners the sample has already gathered: a
+    /// dozen subtractions and lerps, lane-wise in the vector loops, and no load. Central
+    /// differences on the cached corners (a gradient at each corner, interpolated) need the
+    /// 24 voxels around the cell as well, four times the gathers of the sample itself, and
+    /// reach a voxel beyond the cell, which a brick's private copy does not hold for
+    /// samples at its faces; six more trilinear samples cost more still. In image quality
+    /// it is the exact normal of the field being composited, the trilinear interpolant; its
+    /// one artefact is that across a cell face the component normal to that face may jump,
+    /// which shows as cell-sized facets only where a voxel covers several pixels.
     ///
     /// Each component is the difference of the two opposite faces' bilinear values,
     /// computed from the edge differences along the axis with the same lerp order as

@@ -396,7 +396,7 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
                 let ns = march_reference(&tri, &cls, settings, &ray, range, &mut slow);
                 let n1 = one.march(&tri, &ray, range, &mut single);
                 assert_eq!((n1, single.map(f32::to_bits)), (ns, slow.map(f32::to_bits)));
-                // The scalar reference loop itself (what shading runs).
+                // The scalar reference loop itself (the one `with_scalar_loop` runs).
                 let mut generic = start;
                 let ng = arch::generic::march(&caster.params(), &tri, &ray, range, &mut generic);
                 assert_eq!((ng, generic.map(f32::to_bits)), (ns, slow.map(f32::to_bits)));

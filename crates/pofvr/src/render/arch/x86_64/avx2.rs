@@ -9,12 +9,12 @@
 //! untouched and are skipped as a whole: that is most of the samples in the empty space
 //! around real data.
 //!
-//! Shading computes the gradient of the eight lanes' cells ([`crate::render::sampler::Cell::gradient`])
-//! and their shading factors ([`super::super::generic::lambert`]) lane-wise from the
-//! corners already in registers, with the scalar operations in their order, only for runs
-//! of eight samples of which some are not transparent: a vector operation costs the same
-//! for one live lane as for eight, and the composite uses the factor only for samples
-//! whose opacity is above zero.
+//! Shading computes the gradients of the eight lanes' cells
+//! ([`crate::render::sampler::Cell::gradient`]) and their shading factors
+//! ([`super::super::generic::lambert`]) lane-wise from the corners already in registers,
+//! with the scalar operations in their order, only for runs of eight samples of which some
+//! are not transparent: a vector operation costs the same for one live lane as for eight,
+//! and the composite uses the factor only for samples whose opacity is above zero.
 //!
 //! The eight gathers per sample are independent loads that the core keeps in flight
 //! together, where the one-sample loop issues them a sample at a time.
