@@ -79,6 +79,7 @@ impl<'a> RayCaster<'a> {
                 ert: settings.ert,
                 shade: settings.shade.then(|| volume.spacing()),
                 avx2: arch::avx2_available(),
+                scalar: false,
             },
         }
     }
@@ -91,7 +92,16 @@ impl<'a> RayCaster<'a> {
         self
     }
 
-    /// The sample loop this caster runs: "avx2", "sse2" or "scalar" (shading).
+    /// The same caster on the scalar reference loop (`on`) or on the fastest loop this CPU
+    /// runs: every loop gives the same image, bit for bit, shaded or not; this is for
+    /// comparing them.
+    #[must_use]
+    pub fn with_scalar_loop(mut self, on: bool) -> Self {
+        self.params.scalar = on;
+        self
+    }
+
+    /// The sample loop this caster runs: "avx2", "sse2" or "scalar" (shaded or not).
     #[must_use]
     pub fn simd(&self) -> &'static str {
         arch::name(&self.params)

@@ -161,6 +161,16 @@ fn brick_by_brick_equals_whole_volume_bit_for_bit() {
             -40.0,
             Projection::Perspective,
         ),
+        (
+            RenderSettings {
+                step: 0.6,
+                ert: 0.95,
+                shade: true,
+            },
+            150.0,
+            -35.0,
+            Projection::Perspective,
+        ),
     ] {
         let cls = s.classify(&tf.weights, settings.step);
         let caster = RayCaster::new(&vol, &cls, settings);
@@ -303,6 +313,7 @@ fn random_volume(rng: &mut StdRng, dtype: usize) -> Volume {
 #[test]
 fn fast_march_equals_scalar_reference_bit_for_bit() {
     let mut rng = StdRng::seed_from_u64(0x5eed);
+    let mut shaded_differs = false;
     for case in 0..96 {
         let vol = random_volume(&mut rng, case % 4);
         let (min, max) = with_voxels!(vol.data(), v => v.iter().fold(
@@ -336,6 +347,17 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
         // The one-sample SSE2 loop as well where the CPU runs the AVX2 one by default.
         let one = RayCaster::new(&vol, &cls, settings).with_avx2(false);
         assert_ne!(one.simd(), "avx2");
+        // The same loops shaded, against the scalar loop shaded (the shading reference).
+        let shaded = RenderSettings {
+            shade: true,
+            ..settings
+        };
+        let shaded_loops = [
+            RayCaster::new(&vol, &cls, shaded),
+            RayCaster::new(&vol, &cls, shaded).with_avx2(false),
+        ];
+        let shaded_reference = RayCaster::new(&vol, &cls, shaded).with_scalar_loop(true);
+        assert_eq!(shaded_reference.simd(), "scalar");
         let vbox = caster.volume_box();
         let dims = vol.dims();
         with_voxels!(vol.data(), v => {
@@ -374,7 +396,7 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
                 let ns = march_reference(&tri, &cls, settings, &ray, range, &mut slow);
                 let n1 = one.march(&tri, &ray, range, &mut single);
                 assert_eq!((n1, single.map(f32::to_bits)), (ns, slow.map(f32::to_bits)));
-                // The scalar reference loop itself (what shading runs).
+                // The scalar reference loop itself (the one `with_scalar_loop` runs).
                 let mut generic = start;
                 let ng = arch::generic::march(&caster.params(), &tri, &ray, range, &mut generic);
                 assert_eq!((ng, generic.map(f32::to_bits)), (ns, slow.map(f32::to_bits)));
@@ -385,7 +407,98 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
                     "case {case} ({:?}): {ray:?} {range:?}",
                     vol.data().data_type()
                 );
+                let mut reference = start;
+                let nr = shaded_reference.march(&tri, &ray, range, &mut reference);
+                assert_eq!(nr, ns, "shading changes no opacity, so no sample count");
+                assert_eq!(reference[3].to_bits(), slow[3].to_bits());
+                shaded_differs |= reference != slow;
+                for (i, c) in shaded_loops.iter().enumerate() {
+                    let mut acc = start;
+                    let n = c.march(&tri, &ray, range, &mut acc);
+                    assert_eq!(
+                        (n, acc.map(f32::to_bits)),
+                        (nr, reference.map(f32::to_bits)),
+                        "shaded, loop {} ({i}), case {case} ({:?}): {ray:?} {range:?}",
+                        c.simd(),
+                        vol.data().data_type()
+                    );
+                }
             }
         });
+    }
+    assert!(shaded_differs, "shading changed some colour");
+}
+
+/// Shaded and unshaded frames of the phantoms (u8 and f32 gathers, anisotropic voxels),
+/// orthographic and perspective: the AVX2 and SSE2 loops equal the scalar reference loop
+/// bit for bit, whole-volume and brick by brick.
+#[test]
+fn shaded_frames_of_every_loop_equal_the_scalar_reference_bit_for_bit() {
+    for (phantom, n, spacing) in [
+        (Phantom::SheppLogan, 45, [1.0, 0.8, 1.3]),
+        (Phantom::MarschnerLobb, 33, [1.0; 3]),
+    ] {
+        let base = phantom.generate(n);
+        let data = match base.data() {
+            VoxelData::U8(v) => VoxelData::U8(Voxels::owned(v.as_slice().to_vec())),
+            VoxelData::F32(v) => VoxelData::F32(Voxels::owned(v.as_slice().to_vec())),
+            _ => unreachable!("the phantoms are u8 and f32"),
+        };
+        let vol = Volume::new(base.dims(), spacing, data, "phantom").unwrap();
+        let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+        let tf = families::for_phantom(phantom);
+        let s = SampledTf::new(&tf, grid.value_range());
+        for shade in [true, false] {
+            for (step, az, el, projection) in [
+                (1.0, 30.0, 20.0, Projection::Orthographic),
+                (0.5, -70.0, 45.0, Projection::Perspective),
+                (0.8, 180.0, -10.0, Projection::Perspective),
+            ] {
+                let settings = RenderSettings {
+                    step,
+                    ert: 0.99,
+                    shade,
+                };
+                let cls = s.classify(&tf.weights, step);
+                let cam = Camera::orbit(&vol, az, el, 53, 47, projection);
+                let what = format!("{phantom:?} shade {shade} view {az},{el} {projection:?}");
+                let (reference, _) = RayCaster::new(&vol, &cls, settings)
+                    .with_scalar_loop(true)
+                    .render(&cam);
+                assert!(reference.mean_alpha() > 0.05, "{what} shows something");
+                for avx2 in [true, false] {
+                    let caster = RayCaster::new(&vol, &cls, settings).with_avx2(avx2);
+                    let (img, _) = caster.render(&cam);
+                    assert_eq!(
+                        img.max_abs_diff(&reference),
+                        Some(0.0),
+                        "{what} {}",
+                        caster.simd()
+                    );
+                    let bricks = render_by_bricks(&vol, &grid, &caster, &cam);
+                    assert_eq!(bricks.max_abs_diff(&reference), Some(0.0), "{what} bricks");
+                }
+            }
+        }
+    }
+}
+
+/// `Cell::gradient` is the derivative of `Cell::value`: the interpolant is linear along
+/// each axis inside a cell, so a difference quotient along an axis gives it up to rounding.
+#[test]
+fn cell_gradient_is_the_derivative_of_the_trilinear_value() {
+    let mut rng = StdRng::seed_from_u64(0x9e5d);
+    for _ in 0..2000 {
+        let c: [f32; 8] = std::array::from_fn(|_| rng.gen_range(-100.0..100.0));
+        let f: [f32; 3] = std::array::from_fn(|_| rng.gen_range(0.0..0.75));
+        let cell = sampler::Cell { c, f };
+        let g = cell.gradient();
+        for a in 0..3 {
+            let h = 0.25;
+            let mut f1 = f;
+            f1[a] += h;
+            let q = (sampler::Cell { c, f: f1 }.value() - cell.value()) / h;
+            assert!((q - g[a]).abs() <= 1e-3, "axis {a}: {q} vs {}", g[a]);
+        }
     }
 }

@@ -1,13 +1,20 @@
-//! The scalar sample loop: the reference every other loop equals bit for bit, and the
-//! one that shades.
+//! The scalar sample loop: the reference every other loop equals bit for bit, shaded or
+//! not, and the one definition of shading ([`lambert`]).
 
 use super::MarchParams;
 use crate::render::lattice::IndexRay;
 use crate::render::sampler::TrilinearSampler;
 use crate::volume::Voxel;
 
+/// Ambient share of the shaded colour.
+pub(crate) const AMBIENT: f32 = 0.3;
+/// Diffuse share of the shaded colour.
+pub(crate) const DIFFUSE: f32 = 0.7;
+
 /// Composites samples `k0..k1` of `ray` behind `acc` (premultiplied RGBA); returns the
-/// samples taken. A ray stops once its opacity reaches `p.ert`.
+/// samples taken. A ray stops once its opacity reaches `p.ert`. With shading, a sample's
+/// colour (not its opacity) is scaled by [`lambert`] of its cell's gradient, which is
+/// computed only for samples whose opacity is above zero.
 #[inline(always)]
 pub(crate) fn march<T: Voxel, const COPY: bool>(
     p: &MarchParams<'_>,
@@ -28,13 +35,14 @@ pub(crate) fn march<T: Voxel, const COPY: bool>(
             ray.o[1] + t * ray.d[1],
             ray.o[2] + t * ray.d[2],
         ];
-        let mut s = p.cls.sample(tri.sample(x));
+        let cell = tri.cell(x);
+        let mut s = p.cls.sample(cell.value());
         n += 1;
         if s[3] == 0.0 {
             continue;
         }
         if let Some(spacing) = p.shade {
-            let l = lambert(tri, spacing, x, ray.dir);
+            let l = lambert(cell.gradient(), spacing, ray.dir);
             s[0] *= l;
             s[1] *= l;
             s[2] *= l;
@@ -48,26 +56,19 @@ pub(crate) fn march<T: Voxel, const COPY: bool>(
     n
 }
 
-/// Ambient + diffuse factor with a headlight at index position `x` of a volume with voxel
-/// `spacing`; the gradient uses central differences at ±½ voxel so that it reads only the
-/// brick's ghost layer.
-fn lambert<T: Voxel, const COPY: bool>(
-    tri: &TrilinearSampler<'_, T, COPY>,
-    spacing: [f32; 3],
-    x: [f32; 3],
-    dir: [f32; 3],
-) -> f32 {
-    let mut g = [0f32; 3];
-    for a in 0..3 {
-        let (mut lo, mut hi) = (x, x);
-        lo[a] -= 0.5;
-        hi[a] += 0.5;
-        g[a] = (tri.sample(hi) - tri.sample(lo)) / spacing[a];
-    }
+/// Ambient + diffuse factor of a headlight (light along the view ray `dir`, a unit world
+/// vector; two-sided, no specular) for the index-space gradient `g` of a volume with voxel
+/// `spacing`: the gradient is taken to world units per axis first, so that anisotropic
+/// voxels tilt the normal as they tilt the surface. A gradient too short to give a normal
+/// leaves the colour as it is. The vector loops evaluate these operations lane-wise, in
+/// this order.
+#[inline(always)]
+pub(crate) fn lambert(g: [f32; 3], spacing: [f32; 3], dir: [f32; 3]) -> f32 {
+    let g = [g[0] / spacing[0], g[1] / spacing[1], g[2] / spacing[2]];
     let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
     if len <= f32::EPSILON {
         return 1.0;
     }
     let ndotl = ((g[0] * dir[0] + g[1] * dir[1] + g[2] * dir[2]) / len).abs();
-    0.3 + 0.7 * ndotl
+    AMBIENT + DIFFUSE * ndotl
 }

@@ -1,8 +1,9 @@
 //! The sample loops, laid out by architecture: [`generic`] holds the scalar loop, the
-//! reference every other one equals bit for bit (no fused multiply–adds anywhere, the
-//! same float operations per sample), and the one that shades; `x86_64` holds the SSE2
-//! loop (part of the baseline) and the eight-samples-at-a-time AVX2 loop, chosen at run
-//! time. All of them sample through one [`super::sampler::TrilinearSampler`].
+//! reference every other one equals bit for bit, shaded or not (no fused multiply–adds
+//! anywhere, the same float operations per sample), and the definition of shading;
+//! `x86_64` holds the SSE2 loop (part of the baseline) and the eight-samples-at-a-time
+//! AVX2 loop, chosen at run time. All of them sample through one
+//! [`super::sampler::TrilinearSampler`] and shade from its [`super::sampler::Cell`].
 
 pub(crate) mod generic;
 #[cfg(target_arch = "x86_64")]
@@ -27,6 +28,8 @@ pub(crate) struct MarchParams<'c> {
     pub(crate) shade: Option<[f32; 3]>,
     /// Whether the AVX2 loop may run (set only where the CPU has it).
     pub(crate) avx2: bool,
+    /// Whether to run the scalar reference loop whatever the CPU has (for comparisons).
+    pub(crate) scalar: bool,
 }
 
 /// Voxel types every loop can sample.
@@ -50,7 +53,8 @@ pub(crate) fn avx2_available() -> bool {
 
 /// Composites samples `range` of `ray` behind `acc`; returns the samples taken. Every
 /// loop performs, for every sample, the float operations of [`generic::march`], so they
-/// agree bit for bit and any of them may be taken.
+/// agree bit for bit and any of them may be taken: the scalar one where `p.scalar` asks
+/// for it, the fastest the CPU runs otherwise.
 #[inline(always)]
 pub(crate) fn march<T: Gather, const COPY: bool>(
     p: &MarchParams<'_>,
@@ -60,7 +64,7 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
     acc: &mut [f32; 4],
 ) -> u64 {
     #[cfg(target_arch = "x86_64")]
-    if p.shade.is_none() {
+    if !p.scalar {
         return x86_64::march(p, tri, ray, range, acc);
     }
     generic::march(p, tri, ray, range, acc)
@@ -68,7 +72,7 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
 
 /// The loop [`march`] takes with `p`: "avx2", "sse2" or "scalar".
 pub(crate) fn name(p: &MarchParams<'_>) -> &'static str {
-    match (p.shade.is_some(), p.avx2, cfg!(target_arch = "x86_64")) {
+    match (p.scalar, p.avx2, cfg!(target_arch = "x86_64")) {
         (false, true, _) => "avx2",
         (false, false, true) => "sse2",
         _ => "scalar",

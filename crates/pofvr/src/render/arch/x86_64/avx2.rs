@@ -9,6 +9,13 @@
 //! untouched and are skipped as a whole: that is most of the samples in the empty space
 //! around real data.
 //!
+//! Shading computes the gradients of the eight lanes' cells
+//! ([`crate::render::sampler::Cell::gradient`]) and their shading factors
+//! ([`super::super::generic::lambert`]) lane-wise from the corners already in registers,
+//! with the scalar operations in their order, only for runs of eight samples of which some
+//! are not transparent: a vector operation costs the same for one live lane as for eight,
+//! and the composite uses the factor only for samples whose opacity is above zero.
+//!
 //! The eight gathers per sample are independent loads that the core keeps in flight
 //! together, where the one-sample loop issues them a sample at a time.
 
@@ -22,9 +29,12 @@ use std::arch::x86_64::{
     _mm_storeu_ps,
 };
 
+use super::super::generic::{AMBIENT, DIFFUSE};
+use super::super::MarchParams;
+
 use crate::render::lattice::IndexRay;
 use crate::render::sampler::TrilinearSampler;
-use crate::render::transfer_function::{ClassifierView, BIN_MAX};
+use crate::render::transfer_function::BIN_MAX;
 use crate::volume::Voxel;
 
 /// Whether this CPU runs the AVX2 loop (`POFVR_SIMD=sse2` turns it off, for comparisons).
@@ -195,24 +205,59 @@ pub(crate) struct Acc {
     pub(crate) a3: f32,
 }
 
+/// The shading factors of eight samples, lane-wise [`super::super::generic::lambert`] of
+/// the gradients `g` (index space) with the volume's `spacing` and the ray's `dir`.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn lambert8(g: [__m256; 3], spacing: [__m256; 3], dir: [__m256; 3]) -> __m256 {
+    use std::arch::x86_64::{
+        _mm256_andnot_ps, _mm256_blendv_ps, _mm256_cmp_ps, _mm256_div_ps, _mm256_sqrt_ps,
+        _CMP_LE_OQ,
+    };
+    let g = [
+        _mm256_div_ps(g[0], spacing[0]),
+        _mm256_div_ps(g[1], spacing[1]),
+        _mm256_div_ps(g[2], spacing[2]),
+    ];
+    let dot3 = |a: [__m256; 3], b: [__m256; 3]| {
+        _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(a[0], b[0]), _mm256_mul_ps(a[1], b[1])),
+            _mm256_mul_ps(a[2], b[2]),
+        )
+    };
+    // `sqrtps` and `divps` round correctly, as `f32::sqrt` and `/` do.
+    let len = _mm256_sqrt_ps(dot3(g, g));
+    let ndotl = _mm256_andnot_ps(_mm256_set1_ps(-0.0), _mm256_div_ps(dot3(g, dir), len));
+    let l = _mm256_add_ps(
+        _mm256_set1_ps(AMBIENT),
+        _mm256_mul_ps(_mm256_set1_ps(DIFFUSE), ndotl),
+    );
+    // Where the gradient gives no normal the factor is 1 (and the NaN of 0/0 is dropped).
+    let flat = _mm256_cmp_ps::<_CMP_LE_OQ>(len, _mm256_set1_ps(f32::EPSILON));
+    _mm256_blendv_ps(l, _mm256_set1_ps(1.0), flat)
+}
+
 /// Composites samples `k0..k1` of `ray` into `acc` as [`super::super::generic::march`] does, bit
-/// for bit; returns the samples taken and, when a cell near the end of the data would have
-/// made a gather read past it, the sample index to go on from with another path.
+/// for bit, shaded when `SHADE` (then `p.shade` is set); returns the samples taken and, when
+/// a cell near the end of the data would have made a gather read past it, the sample index
+/// to go on from with another path.
 ///
 /// # Safety
 /// AVX2 is available and [`fits`] holds.
 #[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-pub(crate) unsafe fn march<T: Gather8, const COPY: bool>(
+pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool>(
+    p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T, COPY>,
-    cls: ClassifierView<'_>,
-    step: f32,
-    ert: f32,
     ray: &IndexRay,
     (k0, k1): (i32, i32),
     acc: &mut Acc,
 ) -> (u64, Option<i32>) {
     debug_assert!(fits(tri));
+    debug_assert_eq!(SHADE, p.shade.is_some());
+    let (cls, step, ert) = (p.cls, p.step, p.ert);
+    let splat = |v: [f32; 3]| std::array::from_fn(|a| _mm256_set1_ps(v[a]));
+    let (spacing, dir) = (splat(p.shade.unwrap_or([1.0; 3])), splat(ray.dir));
+    let mut light = [1f32; 8];
     let v = tri.v;
     let [_, s1, s2] = tri.stride;
     let [sx, sy, sz] = tri.step;
@@ -302,7 +347,23 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool>(
             k += 8;
             continue;
         }
-        for &bin in live {
+        if SHADE {
+            // `Cell::gradient`, lane-wise.
+            let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
+            let (d01, d11) = (_mm256_sub_ps(c101, c001), _mm256_sub_ps(c111, c011));
+            let (e0, e1) = (_mm256_sub_ps(c10, c00), _mm256_sub_ps(c11, c01));
+            let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
+            let g = [
+                lerp(x0, x1, f[2]),
+                lerp(e0, e1, f[2]),
+                _mm256_sub_ps(c1, c0),
+            ];
+            // SAFETY: `light` holds eight f32.
+            unsafe {
+                std::arch::x86_64::_mm256_storeu_ps(light.as_mut_ptr(), lambert8(g, spacing, dir));
+            }
+        }
+        for (&bin, &l) in live.iter().zip(&light) {
             if acc.a3 >= ert {
                 return (n, None);
             }
@@ -314,10 +375,12 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool>(
             }
             let w = 1.0 - acc.a3;
             // SAFETY: `s` holds four floats.
-            acc.a = _mm_add_ps(
-                acc.a,
-                _mm_mul_ps(_mm_set1_ps(w), unsafe { _mm_loadu_ps(s.as_ptr()) }),
-            );
+            let mut sv = unsafe { _mm_loadu_ps(s.as_ptr()) };
+            if SHADE {
+                // Colour times l, opacity times 1 (exact).
+                sv = _mm_mul_ps(sv, std::arch::x86_64::_mm_setr_ps(l, l, l, 1.0));
+            }
+            acc.a = _mm_add_ps(acc.a, _mm_mul_ps(_mm_set1_ps(w), sv));
             acc.a3 += w * s[3];
         }
         k += 8;

@@ -8,7 +8,7 @@ use super::{Gather, MarchParams};
 use crate::render::lattice::IndexRay;
 use crate::render::sampler::TrilinearSampler;
 
-/// [`super::march`] without shading.
+/// [`super::march`].
 #[inline(always)]
 pub(crate) fn march<T: Gather, const COPY: bool>(
     p: &MarchParams<'_>,
@@ -20,7 +20,13 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
     if p.avx2 && avx2::fits(tri) {
         let mut a = avx2::load(acc);
         // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked.
-        let (n, rest) = unsafe { avx2::march(tri, p.cls, p.step, p.ert, ray, range, &mut a) };
+        let (n, rest) = unsafe {
+            if p.shade.is_some() {
+                avx2::march::<T, COPY, true>(p, tri, ray, range, &mut a)
+            } else {
+                avx2::march::<T, COPY, false>(p, tri, ray, range, &mut a)
+            }
+        };
         avx2::store(&a, acc);
         return match rest {
             None => n,

@@ -1,10 +1,12 @@
 //! The sample loop on SSE2 (part of the x86_64 baseline), one sample at a time: the
-//! position's three axes, the four x-lerps of a cell, the two y-lerps and the RGBA
-//! composite each take one vector operation per scalar operation they replace, with
-//! exactly the float operations of the scalar loop.
+//! position's three axes, the four x-lerps of a cell, the two y-lerps, the two y-lerps of
+//! the x edges (for the gradient) and the RGBA composite each take one vector operation
+//! per scalar operation they replace, with exactly the float operations of the scalar
+//! loop; the rest of the gradient and the shading factor are the scalar code itself.
 
 use std::arch::x86_64::__m128;
 
+use super::super::generic::lambert;
 use super::super::MarchParams;
 use crate::render::lattice::IndexRay;
 use crate::render::sampler::TrilinearSampler;
@@ -89,7 +91,7 @@ impl GatherOne for u8 {
     }
 }
 
-/// Composites samples `k0..k1` of `ray` behind `acc`, unshaded, as
+/// Composites samples `k0..k1` of `ray` behind `acc`, shaded or not, as
 /// [`super::super::generic::march`] does, bit for bit; returns the samples taken.
 #[inline(always)]
 pub(crate) fn march<T: GatherOne, const COPY: bool>(
@@ -125,8 +127,7 @@ fn march_with<T: GatherOne, const COPY: bool, const PAIRS: bool>(
         _mm_loadu_ps, _mm_max_ps, _mm_min_ps, _mm_movehl_ps, _mm_mul_ps, _mm_set1_ps, _mm_setr_ps,
         _mm_setzero_ps, _mm_shuffle_epi32, _mm_shuffle_ps, _mm_storeu_ps, _mm_sub_ps,
     };
-    debug_assert!(p.shade.is_none());
-    let (step, ert) = (p.step, p.ert);
+    let (step, ert, shade) = (p.step, p.ert, p.shade);
     // SAFETY: SSE2 is part of the x86_64 baseline; the loads, stores and gathers are
     // justified where they happen.
     unsafe {
@@ -174,19 +175,14 @@ fn march_with<T: GatherOne, const COPY: bool, const PAIRS: bool>(
             } else {
                 corners_generic(v, base, steps)
             };
-            // [c00, c01, c10, c11] = lo + (hi − lo)·fx
-            let c = _mm_add_ps(
-                lo,
-                _mm_mul_ps(_mm_sub_ps(hi, lo), _mm_shuffle_ps::<0x00>(f, f)),
-            );
-            // [c0, c1, …] = [c00, c01] + ([c10, c11] − [c00, c01])·fy
-            let c = _mm_add_ps(
-                c,
-                _mm_mul_ps(
-                    _mm_sub_ps(_mm_movehl_ps(c, c), c),
-                    _mm_shuffle_ps::<0x55>(f, f),
-                ),
-            );
+            // The x edges [d00, d01, d10, d11] = hi − lo, and the x-lerps
+            // [c00, c01, c10, c11] = lo + d·fx.
+            let dx = _mm_sub_ps(hi, lo);
+            let c = _mm_add_ps(lo, _mm_mul_ps(dx, _mm_shuffle_ps::<0x00>(f, f)));
+            // [e0, e1, …] = [c10, c11] − [c00, c01], and [c0, c1, …] = [c00, c01] + e·fy.
+            let fy = _mm_shuffle_ps::<0x55>(f, f);
+            let e = _mm_sub_ps(_mm_movehl_ps(c, c), c);
+            let c = _mm_add_ps(c, _mm_mul_ps(e, fy));
             let c0 = _mm_cvtss_f32(c);
             let c1 = _mm_cvtss_f32(_mm_shuffle_ps::<0x55>(c, c));
             let fz = _mm_cvtss_f32(_mm_shuffle_ps::<0xAA>(f, f));
@@ -195,9 +191,25 @@ fn march_with<T: GatherOne, const COPY: bool, const PAIRS: bool>(
             if s[3] == 0.0 {
                 continue;
             }
-            let w = 1.0 - a3;
             // SAFETY (loads): `s` holds four floats.
-            let sv = _mm_loadu_ps(s.as_ptr());
+            let mut sv = _mm_loadu_ps(s.as_ptr());
+            if let Some(spacing) = shade {
+                // `Cell::gradient`: [x0, x1, …] = [d00, d01] + ([d10, d11] − [d00, d01])·fy.
+                let x = _mm_add_ps(dx, _mm_mul_ps(_mm_sub_ps(_mm_movehl_ps(dx, dx), dx), fy));
+                let (x0, x1) = (
+                    _mm_cvtss_f32(x),
+                    _mm_cvtss_f32(_mm_shuffle_ps::<0x55>(x, x)),
+                );
+                let (e0, e1) = (
+                    _mm_cvtss_f32(e),
+                    _mm_cvtss_f32(_mm_shuffle_ps::<0x55>(e, e)),
+                );
+                let g = [x0 + (x1 - x0) * fz, e0 + (e1 - e0) * fz, c1 - c0];
+                let l = lambert(g, spacing, ray.dir);
+                // Colour times l, opacity times 1 (exact).
+                sv = _mm_mul_ps(sv, _mm_setr_ps(l, l, l, 1.0));
+            }
+            let w = 1.0 - a3;
             a = _mm_add_ps(a, _mm_mul_ps(_mm_set1_ps(w), sv));
             a3 += w * s[3];
         }
