@@ -318,3 +318,26 @@ fn a_scene_adopts_a_job_with_its_weights_as_defaults() {
         })
     ));
 }
+
+#[test]
+fn a_jittered_scene_renders_its_brick_frames_equal_to_its_whole_frame() {
+    let (v, tf) = head(36);
+    let s = Scene::builder(v, tf).jitter(Some(11)).build().unwrap();
+    let (plain_v, plain_tf) = head(36);
+    let plain = Scene::builder(plain_v, plain_tf).build().unwrap();
+    for shade in [false, true] {
+        let cam = camera(&s, 40.0);
+        let req = FrameRequest::new(&cam).shade(shade);
+        let whole = s.render_reference(&req).unwrap();
+        assert!(whole.image.mean_alpha() > 0.05);
+        for ranks in [1, 3] {
+            // The ranks' partial images are composited, not carried along each ray: the
+            // order of the additions differs, so the frames agree to float rounding.
+            let bricks = s.render(&req.clone().ranks(ranks)).unwrap();
+            let diff = whole.image.max_abs_diff(&bricks.image).unwrap();
+            assert!(diff <= 1e-6, "ranks {ranks}: {diff}");
+        }
+        let unjittered = plain.render_reference(&req).unwrap();
+        assert!(whole.image.max_abs_diff(&unjittered.image).unwrap() > 1e-3);
+    }
+}
