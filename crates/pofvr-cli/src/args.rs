@@ -26,7 +26,8 @@ pub(crate) enum Command {
     Info(InfoArgs),
     /// Render one frame of a volume to PNG (and optionally raw float RGBA).
     Render(Box<RenderArgs>),
-    /// Render the built-in head phantom to demo.png; needs no input.
+    /// Render the built-in smooth head phantom, shaded and coloured, to demo.png; needs no
+    /// input.
     Demo(DemoArgs),
     /// Serve the interactive viewer on http://127.0.0.1:8080/.
     Serve(crate::cmd::serve::ServeArgs),
@@ -44,7 +45,8 @@ pub(crate) enum Command {
 #[derive(Args, Debug, Clone)]
 pub(crate) struct VolumeArgs {
     /// Volume file (.nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or raw with --dims/--dtype),
-    /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8) or `phantom:ml:N`
+    /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8), `phantom:smooth-head:N`
+    /// (its edges blended over a few voxels, f32, a coloured family) or `phantom:ml:N`
     /// (Marschner–Lobb, f32).
     pub(crate) volume: String,
     /// Raw files: voxel counts X,Y,Z.
@@ -224,8 +226,8 @@ pub(crate) struct FrameArgs {
 #[derive(Args, Debug)]
 pub(crate) struct DemoArgs {
     /// Phantom edge length in voxels.
-    /// > default: 128
-    #[arg(long, default_value_t = 128)]
+    /// > default: 160
+    #[arg(long, default_value_t = 160)]
     pub(crate) n: usize,
     /// Output PNG.
     /// > default: demo.png

@@ -37,6 +37,57 @@ fn demo_needs_no_input() {
     assert_eq!(&png[1..4], b"PNG");
 }
 
+/// Decodes an 8-bit RGBA PNG: (width, height, pixels).
+fn rgba(path: &Path) -> (u32, u32, Vec<[u8; 4]>) {
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = dec.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgba);
+    let px = buf[..info.buffer_size()]
+        .chunks_exact(4)
+        .map(|c| [c[0], c[1], c[2], c[3]])
+        .collect();
+    (info.width, info.height, px)
+}
+
+#[test]
+fn the_demo_is_a_coloured_shaded_image_the_same_on_every_run() {
+    let dir = tempfile::tempdir().unwrap();
+    for out in ["a.png", "b.png"] {
+        let o = pofvr(&["demo", "--n", "64", "-o", out], dir.path());
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let (w, h, px) = rgba(&dir.path().join("a.png"));
+    assert_eq!((w, h), (512, 512));
+    assert_eq!(
+        std::fs::read(dir.path().join("a.png")).unwrap(),
+        std::fs::read(dir.path().join("b.png")).unwrap(),
+        "seeded jitter: reproducible"
+    );
+    let seen: Vec<&[u8; 4]> = px.iter().filter(|p| p[3] > 64).collect();
+    assert!(
+        seen.len() > px.len() / 10,
+        "the head covers the frame: {} pixels",
+        seen.len()
+    );
+    // Coloured: red and blue channels differ on most of the head.
+    let coloured = seen.iter().filter(|p| p[0].abs_diff(p[2]) > 40).count();
+    assert!(
+        coloured > seen.len() / 2,
+        "{coloured} of {} pixels coloured",
+        seen.len()
+    );
+    // Not flat: shading and the features spread the brightness.
+    let lum: Vec<f64> = seen
+        .iter()
+        .map(|p| f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2]))
+        .collect();
+    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
+    let sd = (lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len() as f64).sqrt();
+    assert!(sd > 10.0, "brightness spread {sd}");
+}
+
 #[test]
 fn stats_camera_and_raw_outputs_follow_the_contract() {
     let dir = tempfile::tempdir().unwrap();
