@@ -243,6 +243,9 @@ pub(crate) enum BenchCommand {
     /// Samples per second per core of the ray caster, with and without early termination,
     /// axis-aligned and oblique, on the phantom and on given volumes.
     Render(BenchRenderArgs),
+    /// Frame time of each engine, shaded and unshaded, samples per ray against the minimum,
+    /// and the same frames rendered by VTK (through the peer script) in the same run.
+    Frame(BenchFrameArgs),
     /// POF precompute: brick-views per second per core and bytes per brick per basis for
     /// each encoding, on the phantom and on given volumes.
     Pof(crate::cmd::pof::BenchPofArgs),
@@ -271,6 +274,45 @@ pub(crate) struct BenchRenderArgs {
     /// > default: bench-render.json
     #[arg(long, default_value = "bench-render.json")]
     pub(crate) out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct BenchFrameArgs {
+    /// A volume to measure (repeatable): a file or a phantom spec. The i-th --tf is the
+    /// i-th volume's family; volumes past the last --tf must be phantoms (built-in family).
+    /// > default: phantom:head:128
+    #[arg(long, value_name = "SPEC")]
+    pub(crate) volume: Vec<String>,
+    /// Transfer-function family of the volume in the same position (repeatable).
+    #[arg(long, value_name = "TF.json")]
+    pub(crate) tf: Vec<PathBuf>,
+    /// A view (azimuth, elevation in degrees; repeatable).
+    /// > default: 30,20 and 0,90
+    #[arg(long, value_name = "AZ,EL", allow_hyphen_values = true)]
+    pub(crate) view: Vec<String>,
+    /// Image size.
+    /// > default: 512x512
+    #[arg(long, default_value = "512x512")]
+    pub(crate) size: String,
+    /// Repetitions per engine and frame (the median is reported).
+    /// > default: 3
+    #[arg(long, default_value_t = 3)]
+    pub(crate) reps: usize,
+    /// Python interpreter of the VTK peer (one with vtk, numpy and pillow). Without it and
+    /// --peer-script, VTK is reported as not measured.
+    #[arg(long, value_name = "PATH", requires = "peer_script")]
+    pub(crate) peer_python: Option<PathBuf>,
+    /// The VTK peer script (vtk_render.py).
+    #[arg(long, value_name = "PATH", requires = "peer_python")]
+    pub(crate) peer_script: Option<PathBuf>,
+    /// VTK's timed re-renders per frame (the median is reported).
+    /// > default: 5
+    #[arg(long, default_value_t = 5)]
+    pub(crate) peer_repeat: usize,
+    /// Report file (JSON); a table is printed too.
+    /// > default: bench-frame.json
+    #[arg(long, default_value = "bench-frame.json")]
+    pub(crate) json: PathBuf,
 }
 
 #[derive(Args, Debug)]

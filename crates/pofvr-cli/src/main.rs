@@ -97,6 +97,7 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Experiment(a) => cmd::experiment::run(&a, &ui),
         args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
         args::Command::Bench(args::BenchCommand::Cull(a)) => cmd::bench::cull(&a, &ui),
+        args::Command::Bench(args::BenchCommand::Frame(a)) => cmd::bench::frame(&a, &ui),
         args::Command::Bench(args::BenchCommand::Pof(a)) => cmd::pof::bench(&a, &ui),
         args::Command::Pof(c) => cmd::pof::run(&c, &ui),
     }
