@@ -536,3 +536,111 @@ fn bench_cull_reports_every_case_and_each_target_in_one_run() {
         "{text}"
     );
 }
+
+#[test]
+fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = pofvr(
+        &[
+            "bench",
+            "frame",
+            "--volume",
+            "phantom:head:24",
+            "--volume",
+            "phantom:smooth-head:20",
+            "--view",
+            "30,20",
+            "--size",
+            "40x32",
+            "--reps",
+            "1",
+            "--json",
+            "f.json",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("VTK not measured: no peer"), "{out}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("f.json")).unwrap()).unwrap();
+    assert_eq!(r["image"], serde_json::json!([40, 32]));
+    assert_eq!(r["engines"], serde_json::json!(["whole", "bricks"]));
+    let cases = r["cases"].as_array().unwrap();
+    // Two volumes, one view, unshaded and shaded.
+    assert_eq!(cases.len(), 4);
+    for c in cases {
+        for k in [
+            "volume",
+            "view",
+            "shade",
+            "rays",
+            "min_samples_per_ray",
+            "engines",
+            "vtk",
+        ] {
+            assert!(c.get(k).is_some(), "case lacks {k}: {c}");
+        }
+        assert_eq!(c["vtk"]["measured"], false);
+        assert!(c["vtk"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("--peer-python"));
+        assert!(c["vtk"]["median_ms"].is_null() && c["vtk"]["psnr_db"].is_null());
+        let min = c["min_samples_per_ray"].as_f64().unwrap();
+        assert!(min > 0.0);
+        let engines = c["engines"].as_array().unwrap();
+        assert_eq!(engines.len(), 2);
+        for e in engines {
+            for k in [
+                "engine",
+                "median_ms",
+                "samples",
+                "samples_per_ray",
+                "samples_over_minimum",
+                "max_abs_diff_vs_whole",
+                "vtk_over_pofvr",
+            ] {
+                assert!(e.get(k).is_some(), "engine lacks {k}: {e}");
+            }
+            assert!(e["vtk_over_pofvr"].is_null());
+            // No engine takes fewer samples than the minimum.
+            assert!(e["samples_per_ray"].as_f64().unwrap() >= min, "{e}");
+        }
+    }
+    // A peer that cannot run is a reason, never a number.
+    let o = pofvr(
+        &[
+            "bench",
+            "frame",
+            "--volume",
+            "phantom:head:16",
+            "--view",
+            "0,0",
+            "--size",
+            "16x16",
+            "--reps",
+            "1",
+            "--json",
+            "g.json",
+            "--peer-python",
+            "/nonexistent/python",
+            "--peer-script",
+            "/nonexistent/vtk_render.py",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("g.json")).unwrap()).unwrap();
+    let vtk = &r["cases"][0]["vtk"];
+    assert_eq!(vtk["measured"], false);
+    assert!(
+        vtk["reason"]
+            .as_str()
+            .unwrap()
+            .contains("/nonexistent/python"),
+        "{vtk}"
+    );
+}
