@@ -26,7 +26,8 @@ pub(crate) enum Command {
     Info(InfoArgs),
     /// Render one frame of a volume to PNG (and optionally raw float RGBA).
     Render(Box<RenderArgs>),
-    /// Render the built-in head phantom to demo.png; needs no input.
+    /// Render the built-in smooth head phantom, shaded and coloured, to demo.png; needs no
+    /// input.
     Demo(DemoArgs),
     /// Serve the interactive viewer on http://127.0.0.1:8080/.
     Serve(crate::cmd::serve::ServeArgs),
@@ -44,7 +45,8 @@ pub(crate) enum Command {
 #[derive(Args, Debug, Clone)]
 pub(crate) struct VolumeArgs {
     /// Volume file (.nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or raw with --dims/--dtype),
-    /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8) or `phantom:ml:N`
+    /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8), `phantom:smooth-head:N`
+    /// (its edges blended over a few voxels, f32, a coloured family) or `phantom:ml:N`
     /// (Marschner–Lobb, f32).
     pub(crate) volume: String,
     /// Raw files: voxel counts X,Y,Z.
@@ -130,6 +132,12 @@ pub(crate) struct ViewArgs {
     /// Gradient (Lambertian, headlight) shading.
     #[arg(long)]
     pub(crate) shade: bool,
+    /// Jittered ray starts: each pixel's first sample moves forward by its own fraction of
+    /// a step, drawn from the pixel and SEED (the same seed gives the same image). Trades
+    /// the wood-grain rings of step-edged volumes for fine noise.
+    /// > default: off; SEED 0 when the flag is given alone
+    #[arg(long, value_name = "SEED", num_args = 0..=1, default_missing_value = "0")]
+    pub(crate) jitter: Option<u32>,
 }
 
 #[derive(Args, Debug)]
@@ -218,8 +226,8 @@ pub(crate) struct FrameArgs {
 #[derive(Args, Debug)]
 pub(crate) struct DemoArgs {
     /// Phantom edge length in voxels.
-    /// > default: 128
-    #[arg(long, default_value_t = 128)]
+    /// > default: 160
+    #[arg(long, default_value_t = 160)]
     pub(crate) n: usize,
     /// Output PNG.
     /// > default: demo.png
@@ -235,6 +243,9 @@ pub(crate) enum BenchCommand {
     /// Samples per second per core of the ray caster, with and without early termination,
     /// axis-aligned and oblique, on the phantom and on given volumes.
     Render(BenchRenderArgs),
+    /// Frame time of each engine, shaded and unshaded, samples per ray against the minimum,
+    /// and the same frames rendered by VTK (through the peer script) in the same run.
+    Frame(BenchFrameArgs),
     /// POF precompute: brick-views per second per core and bytes per brick per basis for
     /// each encoding, on the phantom and on given volumes.
     Pof(crate::cmd::pof::BenchPofArgs),
@@ -263,6 +274,45 @@ pub(crate) struct BenchRenderArgs {
     /// > default: bench-render.json
     #[arg(long, default_value = "bench-render.json")]
     pub(crate) out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct BenchFrameArgs {
+    /// A volume to measure (repeatable): a file or a phantom spec. The i-th --tf is the
+    /// i-th volume's family; volumes past the last --tf must be phantoms (built-in family).
+    /// > default: phantom:head:128
+    #[arg(long, value_name = "SPEC")]
+    pub(crate) volume: Vec<String>,
+    /// Transfer-function family of the volume in the same position (repeatable).
+    #[arg(long, value_name = "TF.json")]
+    pub(crate) tf: Vec<PathBuf>,
+    /// A view (azimuth, elevation in degrees; repeatable).
+    /// > default: 30,20 and 0,90
+    #[arg(long, value_name = "AZ,EL", allow_hyphen_values = true)]
+    pub(crate) view: Vec<String>,
+    /// Image size.
+    /// > default: 512x512
+    #[arg(long, default_value = "512x512")]
+    pub(crate) size: String,
+    /// Repetitions per engine and frame (the median is reported).
+    /// > default: 3
+    #[arg(long, default_value_t = 3)]
+    pub(crate) reps: usize,
+    /// Python interpreter of the VTK peer (one with vtk, numpy and pillow). Without it and
+    /// --peer-script, VTK is reported as not measured.
+    #[arg(long, value_name = "PATH", requires = "peer_script")]
+    pub(crate) peer_python: Option<PathBuf>,
+    /// The VTK peer script (vtk_render.py).
+    #[arg(long, value_name = "PATH", requires = "peer_python")]
+    pub(crate) peer_script: Option<PathBuf>,
+    /// VTK's timed re-renders per frame (the median is reported).
+    /// > default: 5
+    #[arg(long, default_value_t = 5)]
+    pub(crate) peer_repeat: usize,
+    /// Report file (JSON); a table is printed too.
+    /// > default: bench-frame.json
+    #[arg(long, default_value = "bench-frame.json")]
+    pub(crate) json: PathBuf,
 }
 
 #[derive(Args, Debug)]

@@ -67,6 +67,9 @@ fn hint_of(cause: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
             Some(pofvr::Error::Volume(v)) => Some(v),
             _ => None,
         });
+    if let Some(pofvr::Error::JitteredPofs { .. }) = cause.downcast_ref() {
+        return Some(" (drop --jitter, or cull with --cull exact)");
+    }
     if let Some(VolumeError::UnknownFormat { .. }) = volume {
         return Some(" (a raw file takes --dims and --dtype)");
     }
@@ -167,6 +170,7 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Experiment(a) => cmd::experiment::run(&a, &ui),
         args::Command::Bench(args::BenchCommand::Render(a)) => cmd::bench::render(&a, &ui),
         args::Command::Bench(args::BenchCommand::Cull(a)) => cmd::bench::cull(&a, &ui),
+        args::Command::Bench(args::BenchCommand::Frame(a)) => cmd::bench::frame(&a, &ui),
         args::Command::Bench(args::BenchCommand::Pof(a)) => cmd::pof::bench(&a, &ui),
         args::Command::Pof(c) => cmd::pof::run(&c, &ui),
     }

@@ -143,6 +143,7 @@ pub(crate) fn settings(v: &ViewArgs) -> RenderSettings {
         step: v.step,
         ert: v.ert,
         shade: v.shade,
+        jitter: v.jitter,
     }
 }
 

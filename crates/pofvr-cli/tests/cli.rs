@@ -37,6 +37,57 @@ fn demo_needs_no_input() {
     assert_eq!(&png[1..4], b"PNG");
 }
 
+/// Decodes an 8-bit RGBA PNG: (width, height, pixels).
+fn rgba(path: &Path) -> (u32, u32, Vec<[u8; 4]>) {
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = dec.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgba);
+    let px = buf[..info.buffer_size()]
+        .chunks_exact(4)
+        .map(|c| [c[0], c[1], c[2], c[3]])
+        .collect();
+    (info.width, info.height, px)
+}
+
+#[test]
+fn the_demo_is_a_coloured_shaded_image_the_same_on_every_run() {
+    let dir = tempfile::tempdir().unwrap();
+    for out in ["a.png", "b.png"] {
+        let o = pofvr(&["demo", "--n", "64", "-o", out], dir.path());
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let (w, h, px) = rgba(&dir.path().join("a.png"));
+    assert_eq!((w, h), (512, 512));
+    assert_eq!(
+        std::fs::read(dir.path().join("a.png")).unwrap(),
+        std::fs::read(dir.path().join("b.png")).unwrap(),
+        "seeded jitter: reproducible"
+    );
+    let seen: Vec<&[u8; 4]> = px.iter().filter(|p| p[3] > 64).collect();
+    assert!(
+        seen.len() > px.len() / 10,
+        "the head covers the frame: {} pixels",
+        seen.len()
+    );
+    // Coloured: red and blue channels differ on most of the head.
+    let coloured = seen.iter().filter(|p| p[0].abs_diff(p[2]) > 40).count();
+    assert!(
+        coloured > seen.len() / 2,
+        "{coloured} of {} pixels coloured",
+        seen.len()
+    );
+    // Not flat: shading and the features spread the brightness.
+    let lum: Vec<f64> = seen
+        .iter()
+        .map(|p| f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2]))
+        .collect();
+    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
+    let sd = (lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len() as f64).sqrt();
+    assert!(sd > 10.0, "brightness spread {sd}");
+}
+
 #[test]
 fn stats_camera_and_raw_outputs_follow_the_contract() {
     let dir = tempfile::tempdir().unwrap();
@@ -483,5 +534,113 @@ fn bench_cull_reports_every_case_and_each_target_in_one_run() {
     assert!(
         text.contains("target load balance at 32 ranks (2 replicas)"),
         "{text}"
+    );
+}
+
+#[test]
+fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = pofvr(
+        &[
+            "bench",
+            "frame",
+            "--volume",
+            "phantom:head:24",
+            "--volume",
+            "phantom:smooth-head:20",
+            "--view",
+            "30,20",
+            "--size",
+            "40x32",
+            "--reps",
+            "1",
+            "--json",
+            "f.json",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("VTK not measured: no peer"), "{out}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("f.json")).unwrap()).unwrap();
+    assert_eq!(r["image"], serde_json::json!([40, 32]));
+    assert_eq!(r["engines"], serde_json::json!(["whole", "bricks"]));
+    let cases = r["cases"].as_array().unwrap();
+    // Two volumes, one view, unshaded and shaded.
+    assert_eq!(cases.len(), 4);
+    for c in cases {
+        for k in [
+            "volume",
+            "view",
+            "shade",
+            "rays",
+            "min_samples_per_ray",
+            "engines",
+            "vtk",
+        ] {
+            assert!(c.get(k).is_some(), "case lacks {k}: {c}");
+        }
+        assert_eq!(c["vtk"]["measured"], false);
+        assert!(c["vtk"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("--peer-python"));
+        assert!(c["vtk"]["median_ms"].is_null() && c["vtk"]["psnr_db"].is_null());
+        let min = c["min_samples_per_ray"].as_f64().unwrap();
+        assert!(min > 0.0);
+        let engines = c["engines"].as_array().unwrap();
+        assert_eq!(engines.len(), 2);
+        for e in engines {
+            for k in [
+                "engine",
+                "median_ms",
+                "samples",
+                "samples_per_ray",
+                "samples_over_minimum",
+                "max_abs_diff_vs_whole",
+                "vtk_over_pofvr",
+            ] {
+                assert!(e.get(k).is_some(), "engine lacks {k}: {e}");
+            }
+            assert!(e["vtk_over_pofvr"].is_null());
+            // No engine takes fewer samples than the minimum.
+            assert!(e["samples_per_ray"].as_f64().unwrap() >= min, "{e}");
+        }
+    }
+    // A peer that cannot run is a reason, never a number.
+    let o = pofvr(
+        &[
+            "bench",
+            "frame",
+            "--volume",
+            "phantom:head:16",
+            "--view",
+            "0,0",
+            "--size",
+            "16x16",
+            "--reps",
+            "1",
+            "--json",
+            "g.json",
+            "--peer-python",
+            "/nonexistent/python",
+            "--peer-script",
+            "/nonexistent/vtk_render.py",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("g.json")).unwrap()).unwrap();
+    let vtk = &r["cases"][0]["vtk"];
+    assert_eq!(vtk["measured"], false);
+    assert!(
+        vtk["reason"]
+            .as_str()
+            .unwrap()
+            .contains("/nonexistent/python"),
+        "{vtk}"
     );
 }

@@ -166,3 +166,50 @@ fn replicas_give_the_same_frame_and_more_replicas_than_ranks_are_refused() {
     assert!(err.contains("--replicas") && err.contains("got 4"), "{err}");
     assert!(!d.join("bad.raw").exists());
 }
+
+#[test]
+fn jitter_is_off_unless_asked_reproducible_per_seed_and_the_same_for_bricks_and_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let render = |out: &str, extra: &[&str]| {
+        let mut args = vec![
+            "render",
+            "phantom:head:40",
+            "--size",
+            "48x40",
+            "--view",
+            "25,15",
+            "-o",
+            "o.png",
+            "--out-raw",
+            out,
+        ];
+        args.extend_from_slice(extra);
+        let o = pofvr(&args, d);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    render("plain.raw", &[]);
+    render("plain-whole.raw", &["--whole"]);
+    render("j0.raw", &["--jitter"]);
+    render("j0-again.raw", &["--jitter", "0"]);
+    render("j5.raw", &["--jitter", "5"]);
+    render("j5-whole.raw", &["--jitter", "5", "--whole"]);
+    let diff = |a: &str, b: &str| max_diff(&d.join(a), &d.join(b));
+    // The brick and whole frames differ by early termination inside bricks only
+    // (at most 1 − ert); the jitter adds nothing to that.
+    let unjittered_gap = diff("plain.raw", "plain-whole.raw");
+    assert!(unjittered_gap <= 0.01 + 1e-6, "{unjittered_gap}");
+    assert!(diff("j5.raw", "j5-whole.raw") <= 0.01 + 1e-6);
+    assert_eq!(
+        diff("j0.raw", "j0-again.raw"),
+        0.0,
+        "--jitter alone is seed 0"
+    );
+    assert!(diff("j0.raw", "j5.raw") > 1e-3, "seeds differ");
+    assert!(
+        diff("plain.raw", "j5.raw") > 1e-3,
+        "jitter is off without the flag"
+    );
+    render("j5-ranks.raw", &["--jitter", "5", "--ranks", "3"]);
+    assert!(diff("j5.raw", "j5-ranks.raw") <= 1e-6);
+}

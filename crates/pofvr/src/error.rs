@@ -148,6 +148,13 @@ pub enum Error {
         /// The mode asked for.
         mode: CullMode,
     },
+    /// A POF cull mode in a scene with jittered ray starts: POF tables bound what the
+    /// unjittered sample lattice composites, and jitter moves every sample.
+    #[error("cull mode {} with jittered ray starts: POF tables bound the unjittered sample lattice", .mode.name())]
+    JitteredPofs {
+        /// The mode asked for.
+        mode: CullMode,
+    },
     /// A [`crate::Cull`] carrying another scene's POFs.
     #[error("the frame's POFs belong to another scene: take them from the scene rendered")]
     ForeignPofs,

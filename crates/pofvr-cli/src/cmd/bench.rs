@@ -9,7 +9,7 @@ use pofvr::render::{families, Camera, Projection, RenderSettings};
 use pofvr::volume::phantom::Phantom;
 use pofvr::volume::Volume;
 
-use crate::args::{BenchCullArgs, BenchRenderArgs};
+use crate::args::{BenchCullArgs, BenchFrameArgs, BenchRenderArgs};
 use crate::cmd::experiment::Bars;
 use crate::progress::Ui;
 use crate::resolve;
@@ -61,6 +61,137 @@ pub(crate) fn render(a: &BenchRenderArgs, ui: &Ui) -> Result<()> {
     pofvr::io::write_bytes_atomic(&a.out, serde_json::to_string_pretty(&report)?.as_bytes())?;
     println!("report: {}", a.out.display());
     Ok(())
+}
+
+pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
+    use pofvr::experiment::bench_frame::VtkPeer;
+    use pofvr::experiment::{FrameBench, FrameVolume};
+    let (w, h) = resolve::size(&a.size)?;
+    let specs = if a.volume.is_empty() {
+        vec!["phantom:head:128".to_owned()]
+    } else {
+        a.volume.clone()
+    };
+    if a.tf.len() > specs.len() {
+        anyhow::bail!(
+            "--tf: {} families for {} volumes (the i-th --tf goes with the i-th --volume)",
+            a.tf.len(),
+            specs.len()
+        );
+    }
+    let views = if a.view.is_empty() {
+        vec![[30.0, 20.0], [0.0, 90.0]]
+    } else {
+        a.view
+            .iter()
+            .map(|v| resolve::parse_list::<f64>("--view", v, Some(2)).map(|x| [x[0], x[1]]))
+            .collect::<Result<_>>()?
+    };
+    let mut volumes = Vec::new();
+    for (i, spec) in specs.iter().enumerate() {
+        let sp = ui.spinner(&format!("opening and bricking {spec}"));
+        let vol_args = crate::args::VolumeArgs {
+            volume: spec.clone(),
+            dims: None,
+            dtype: None,
+            endian: "little".into(),
+            spacing: None,
+            header_bytes: 0,
+            brick: 16,
+        };
+        let vol = resolve::volume(&vol_args)?;
+        let tf_args = crate::args::TfArgs {
+            tf: a.tf.get(i).cloned(),
+            weights: None,
+        };
+        let tf = resolve::required_tf(&tf_args, spec)?;
+        let scene = pofvr::Scene::builder(vol, tf).build()?;
+        sp.finish_and_clear();
+        volumes.push(FrameVolume {
+            name: spec.clone(),
+            scene,
+        });
+    }
+    let peer = match (&a.peer_python, &a.peer_script) {
+        (Some(python), Some(script)) => Ok(VtkPeer {
+            python: python.clone(),
+            script: script.clone(),
+            threads: rayon::current_num_threads(),
+            repeat: a.peer_repeat,
+        }),
+        _ => Err("no peer: --peer-python and --peer-script not given".to_owned()),
+    };
+    let bench = FrameBench {
+        views,
+        size: (w, h),
+        reps: a.reps,
+        peer,
+    };
+    let bars = Bars::new(ui);
+    let cases = pofvr::experiment::bench_frame(&volumes, &bench, &bars)?;
+    let threads = rayon::current_num_threads();
+    println!("{w}x{h}, {threads} threads (pofvr and VTK), orthographic; medians");
+    println!(
+        "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8}",
+        "volume",
+        "view",
+        "shade",
+        "engine",
+        "ms",
+        "VTK ms",
+        "VTK/pofvr",
+        "samp/ray",
+        "min",
+        "x min",
+        "PSNR dB"
+    );
+    let opt = |x: Option<f64>, p: usize| x.map_or_else(|| "-".to_owned(), |v| format!("{v:.p$}"));
+    for c in &cases {
+        for e in &c.engines {
+            println!(
+                "{:<28} {:>9} {:>5} {:>8} {:>9.1} {:>9} {:>10} {:>10.1} {:>8.1} {:>8.2} {:>8}",
+                short(&c.volume, 28),
+                format!("{},{}", c.view[0], c.view[1]),
+                if c.shade { "on" } else { "off" },
+                e.engine.name(),
+                e.median_ms,
+                opt(c.vtk.median_ms, 1),
+                opt(e.vtk_over_pofvr, 2),
+                e.samples_per_ray,
+                c.min_samples_per_ray,
+                e.samples_over_minimum,
+                opt(c.vtk.psnr_db, 1),
+            );
+        }
+    }
+    let mut reasons: Vec<&str> = cases
+        .iter()
+        .filter_map(|c| c.vtk.reason.as_deref())
+        .collect();
+    reasons.dedup();
+    for r in reasons {
+        println!("VTK not measured: {r}");
+    }
+    let report = serde_json::json!({
+        "threads": threads,
+        "image": [w, h],
+        "projection": "orthographic",
+        "engines": pofvr::experiment::FRAME_ENGINES.map(|e| e.name()),
+        "cases": cases,
+    });
+    pofvr::io::write_bytes_atomic(&a.json, serde_json::to_string_pretty(&report)?.as_bytes())?;
+    println!("report: {}", a.json.display());
+    Ok(())
+}
+
+/// The last `n` characters of `s` (paths keep their distinctive end).
+fn short(s: &str, n: usize) -> String {
+    let count = s.chars().count();
+    if count <= n {
+        return s.to_owned();
+    }
+    let tail: String = s.chars().skip(count - (n - 1)).collect();
+    format!("…{tail}")
 }
 
 /// The targets of `--targets`: a JSON list of {what, target, at_most}.

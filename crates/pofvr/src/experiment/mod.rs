@@ -16,6 +16,7 @@
 
 mod audit;
 pub mod bench_cull;
+pub mod bench_frame;
 mod bench_render;
 mod fig1_pof;
 mod fig4_view;
@@ -28,6 +29,9 @@ mod timing;
 
 pub use audit::{audit, Audit, AuditMethod, AuditRow};
 pub use bench_cull::{bench_cull, CullBench, CullCase};
+pub use bench_frame::{
+    bench_frame, FrameBench, FrameCase, FrameEngine, FrameVolume, FRAME_ENGINES,
+};
 pub use bench_render::{bench_render, RenderCase};
 pub use fig1_pof::{pof_construction, PofBuild, PofBuildRow, PofSource};
 pub use fig4_view::{culling_vs_view, MethodMean, ViewRow, ViewSweep};
@@ -61,6 +65,9 @@ pub enum ExperimentError {
     /// A cross-check of two ways of computing one thing failed.
     #[error("{0}")]
     Check(String),
+    /// A frame of a [`crate::Scene`] failed.
+    #[error(transparent)]
+    Scene(#[from] crate::Error),
     /// A setting out of range (names the setting, the value and the range).
     #[error("{0}")]
     Setting(String),

@@ -55,6 +55,7 @@ pub fn core_min(
         step,
         ert,
         shade: false,
+        jitter: None,
     };
     let rc = RayCaster::new(volume, &cls, settings);
     let b = grid.index_box(id);

@@ -13,6 +13,19 @@ pub const SHEPP_LOGAN_JSON: &str = r#"{
   "color": [[0, 0.0, 0.0, 0.0], [40, 0.85, 0.55, 0.45], [100, 0.95, 0.75, 0.6], [200, 1.0, 0.97, 0.9], [255, 1.0, 1.0, 1.0]]
 }"#;
 
+/// A coloured family for the smooth head's intensities (air 0, brain ≈ 50, small
+/// features 75–100, skull up to 250): brain a faint rose veil, the features amber, the
+/// skull translucent ivory, so a shaded frame shows the inside through the shell.
+pub const SMOOTH_HEAD_JSON: &str = r#"{
+  "bases": [
+    {"name": "brain", "opacity": [[28, 0.0], [46, 0.008], [58, 0.008], [66, 0.0]]},
+    {"name": "features", "opacity": [[66, 0.0], [76, 0.12], [102, 0.12], [112, 0.0]]},
+    {"name": "skull", "opacity": [[150, 0.0], [220, 0.1], [255, 0.14]]}
+  ],
+  "weights": [1.0, 1.0, 1.0],
+  "color": [[0, 0.3, 0.35, 0.8], [48, 0.95, 0.45, 0.5], [62, 0.95, 0.55, 0.35], [80, 1.0, 0.7, 0.15], [104, 1.0, 0.55, 0.1], [125, 0.6, 0.75, 0.95], [200, 0.95, 0.93, 0.85], [255, 1.0, 1.0, 0.95]]
+}"#;
+
 /// Two iso-bands for the Marschner–Lobb signal in [0, 1].
 pub const MARSCHNER_LOBB_JSON: &str = r#"{
   "bases": [
@@ -28,6 +41,7 @@ pub const MARSCHNER_LOBB_JSON: &str = r#"{
 pub fn for_phantom(p: crate::volume::phantom::Phantom) -> TransferFunction {
     let text = match p {
         crate::volume::phantom::Phantom::SheppLogan => SHEPP_LOGAN_JSON,
+        crate::volume::phantom::Phantom::SmoothHead => SMOOTH_HEAD_JSON,
         crate::volume::phantom::Phantom::MarschnerLobb => MARSCHNER_LOBB_JSON,
     };
     TransferFunction::from_json(text, "<built-in>").expect("built-in family is valid")

@@ -2,6 +2,7 @@
 //!
 //! - `camera`, `image`, `transfer_function` (and `families`, the built-in ones).
 //! - `lattice`: index rays and the one sample lattice every box of a ray is sampled on.
+//! - `jitter`: seeded per-pixel offsets of the first sample (reproducible, off by default).
 //! - `sampler`: the trilinear sampler, the one definition of a sample's value.
 //! - `ray_caster`: whole-volume and per-box renders ([`RayCaster`]).
 //! - `arch`: the sample loops, `arch/generic.rs` the scalar reference (and shading),
@@ -11,6 +12,7 @@ mod arch;
 pub mod camera;
 pub mod families;
 pub mod image;
+pub mod jitter;
 mod lattice;
 pub mod ray_caster;
 pub(crate) mod sampler;

@@ -6,6 +6,7 @@ use rayon::prelude::*;
 use super::arch::{self, Gather, MarchParams};
 use super::camera::{Camera, PixelRect, ViewFrame};
 use super::image::Image;
+use super::jitter;
 use super::sampler::TrilinearSampler;
 use super::transfer_function::Classifier;
 use crate::brick::IndexBox;
@@ -24,6 +25,10 @@ pub struct RenderSettings {
     pub ert: f32,
     /// Lambertian gradient shading with a headlight.
     pub shade: bool,
+    /// Jittered ray starts with this seed ([`super::jitter`]): each pixel's first sample
+    /// moves forward by its own fraction of a step. Default `None` (every ray on the
+    /// unshifted lattice).
+    pub jitter: Option<u32>,
 }
 
 impl Default for RenderSettings {
@@ -32,6 +37,7 @@ impl Default for RenderSettings {
             step: 1.0,
             ert: 0.99,
             shade: false,
+            jitter: None,
         }
     }
 }
@@ -122,11 +128,17 @@ impl<'a> RayCaster<'a> {
         }
     }
 
-    /// The index ray through the centre of pixel `(x, y)`.
+    /// The index ray through the centre of pixel `(x, y)`, shifted by the pixel's jitter
+    /// when the settings ask for it: every render of a box goes through here, so every
+    /// partition of a ray samples the same lattice.
     #[must_use]
     pub fn pixel_ray(&self, camera: &Camera, frame: &ViewFrame, x: u32, y: u32) -> IndexRay {
         let r = camera.ray(frame, f64::from(x) + 0.5, f64::from(y) + 0.5);
-        IndexRay::new(&r, self.volume.spacing(), self.volume.unit())
+        let ray = IndexRay::new(&r, self.volume.spacing(), self.volume.unit());
+        match self.settings.jitter {
+            None => ray,
+            Some(seed) => jitter::shifted(ray, jitter::offset(seed, x, y), self.settings.step),
+        }
     }
 
     /// Renders the whole volume (the reference, no bricks, no culling), in parallel over

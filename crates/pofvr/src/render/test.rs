@@ -36,6 +36,7 @@ fn constant_slab_head_on_gives_beer_lambert() {
         step: 0.5,
         ert: 2.0,
         shade: false,
+        jitter: None,
     };
     let cls = s.classify(&[1.0], settings.step);
     let cam = Camera::orbit(&vol, 0.0, 0.0, 64, 64, Projection::Orthographic);
@@ -68,17 +69,13 @@ fn fully_transparent_tf_gives_a_transparent_image() {
 }
 
 /// Renders brick by brick along each ray, carrying the accumulator across bricks.
-fn render_by_bricks(vol: &Volume, grid: &BrickGrid, caster: &RayCaster<'_>, cam: &Camera) -> Image {
+fn render_by_bricks(grid: &BrickGrid, caster: &RayCaster<'_>, cam: &Camera) -> Image {
     let frame = cam.frame();
     let mut img = Image::new(cam.width, cam.height);
     let w = cam.width;
     for (i, px) in img.pixels_mut().iter_mut().enumerate() {
         let (x, y) = (i as u32 % w, i as u32 / w);
-        let ray = IndexRay::new(
-            &cam.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
-            vol.spacing(),
-            vol.unit(),
-        );
+        let ray = caster.pixel_ray(cam, &frame, x, y);
         let mut hits: Vec<_> = grid
             .ids()
             .filter_map(|b| ray.span(&grid.index_box(b)).map(|s| (s.0, b)))
@@ -126,6 +123,7 @@ fn brick_by_brick_equals_whole_volume_bit_for_bit() {
                 step: 1.0,
                 ert: 2.0,
                 shade: false,
+                jitter: None,
             },
             0.0,
             0.0,
@@ -136,6 +134,7 @@ fn brick_by_brick_equals_whole_volume_bit_for_bit() {
                 step: 1.0,
                 ert: 2.0,
                 shade: false,
+                jitter: None,
             },
             90.0,
             0.0,
@@ -146,6 +145,7 @@ fn brick_by_brick_equals_whole_volume_bit_for_bit() {
                 step: 0.7,
                 ert: 0.99,
                 shade: true,
+                jitter: None,
             },
             33.0,
             21.0,
@@ -156,6 +156,7 @@ fn brick_by_brick_equals_whole_volume_bit_for_bit() {
                 step: 0.5,
                 ert: 0.9,
                 shade: false,
+                jitter: None,
             },
             -120.0,
             -40.0,
@@ -166,6 +167,7 @@ fn brick_by_brick_equals_whole_volume_bit_for_bit() {
                 step: 0.6,
                 ert: 0.95,
                 shade: true,
+                jitter: None,
             },
             150.0,
             -35.0,
@@ -176,7 +178,7 @@ fn brick_by_brick_equals_whole_volume_bit_for_bit() {
         let caster = RayCaster::new(&vol, &cls, settings);
         let cam = Camera::orbit(&vol, az, el, 41, 37, projection);
         let (whole, _) = caster.render(&cam);
-        let bricks = render_by_bricks(&vol, &grid, &caster, &cam);
+        let bricks = render_by_bricks(&grid, &caster, &cam);
         assert!(whole.mean_alpha() > 0.05, "view {az},{el} shows something");
         assert_eq!(
             whole.max_abs_diff(&bricks),
@@ -341,6 +343,7 @@ fn fast_march_equals_scalar_reference_bit_for_bit() {
             step: [0.3, 0.7, 1.0, 1.6][rng.gen_range(0..4)],
             ert: [0.5, 0.95, 2.0][rng.gen_range(0..3)],
             shade: false,
+            jitter: None,
         };
         let cls = s.classify(&[rng.gen_range(0.5..3.0)], settings.step);
         let caster = RayCaster::new(&vol, &cls, settings);
@@ -458,6 +461,7 @@ fn shaded_frames_of_every_loop_equal_the_scalar_reference_bit_for_bit() {
                     step,
                     ert: 0.99,
                     shade,
+                    jitter: None,
                 };
                 let cls = s.classify(&tf.weights, step);
                 let cam = Camera::orbit(&vol, az, el, 53, 47, projection);
@@ -475,7 +479,7 @@ fn shaded_frames_of_every_loop_equal_the_scalar_reference_bit_for_bit() {
                         "{what} {}",
                         caster.simd()
                     );
-                    let bricks = render_by_bricks(&vol, &grid, &caster, &cam);
+                    let bricks = render_by_bricks(&grid, &caster, &cam);
                     assert_eq!(bricks.max_abs_diff(&reference), Some(0.0), "{what} bricks");
                 }
             }
@@ -500,5 +504,118 @@ fn cell_gradient_is_the_derivative_of_the_trilinear_value() {
             let q = (sampler::Cell { c, f: f1 }.value() - cell.value()) / h;
             assert!((q - g[a]).abs() <= 1e-3, "axis {a}: {q} vs {}", g[a]);
         }
+    }
+}
+
+#[test]
+fn jitter_offsets_are_reproducible_in_range_and_depend_on_the_seed() {
+    let (mut same_as_other_seed, mut sum) = (0, 0.0f64);
+    for y in 0..64 {
+        for x in 0..64 {
+            let a = jitter::offset(7, x, y);
+            assert_eq!(a, jitter::offset(7, x, y));
+            assert!((0.0..1.0).contains(&a), "offset {a} at {x},{y}");
+            same_as_other_seed += usize::from(a == jitter::offset(8, x, y));
+            sum += f64::from(a);
+        }
+    }
+    assert!(
+        same_as_other_seed < 4,
+        "{same_as_other_seed} pixels ignore the seed"
+    );
+    // Spread over the step, not clustered: the mean of 4096 uniform draws is 0.5 ± 0.005.
+    let mean = sum / 4096.0;
+    assert!((mean - 0.5).abs() < 0.03, "mean offset {mean}");
+    // Neighbouring pixels are not ordered like the lattice phase they replace.
+    let row: Vec<f32> = (0..64).map(|x| jitter::offset(7, x, 3)).collect();
+    let rising = row.windows(2).filter(|w| w[1] > w[0]).count();
+    assert!((16..48).contains(&rising), "{rising} of 63 steps rise");
+}
+
+#[test]
+fn without_jitter_every_pixel_ray_is_the_camera_ray_and_with_it_rays_move_under_a_step() {
+    let vol = Phantom::SheppLogan.generate(24);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let s = SampledTf::new(
+        &tf,
+        crate::brick::ValueRange {
+            min: 0.0,
+            max: 255.0,
+        },
+    );
+    let plain = RenderSettings::default();
+    assert_eq!(plain.jitter, None, "jitter is off by default");
+    let jittered = RenderSettings {
+        step: 0.8,
+        jitter: Some(3),
+        ..plain
+    };
+    let cls = s.classify(&tf.weights, plain.step);
+    let a = RayCaster::new(&vol, &cls, plain);
+    let b = RayCaster::new(&vol, &cls, jittered);
+    for projection in [Projection::Orthographic, Projection::Perspective] {
+        let cam = Camera::orbit(&vol, 20.0, 10.0, 16, 12, projection);
+        let frame = cam.frame();
+        for (x, y) in [(0, 0), (5, 7), (15, 11)] {
+            let camera_ray = IndexRay::new(
+                &cam.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5),
+                vol.spacing(),
+                vol.unit(),
+            );
+            assert_eq!(a.pixel_ray(&cam, &frame, x, y), camera_ray);
+            let r = b.pixel_ray(&cam, &frame, x, y);
+            assert_eq!((r.d, r.dir), (camera_ray.d, camera_ray.dir));
+            // The origin moved forward along d by offset · step.
+            let moved = (0..3)
+                .map(|k| (r.o[k] - camera_ray.o[k]) * camera_ray.d[k])
+                .sum::<f32>()
+                / (0..3)
+                    .map(|k| camera_ray.d[k] * camera_ray.d[k])
+                    .sum::<f32>();
+            let want = jitter::offset(3, x, y) * 0.8;
+            assert!((moved - want).abs() < 1e-3, "moved {moved}, want {want}");
+        }
+    }
+}
+
+#[test]
+fn jittered_frames_are_reproducible_differ_by_seed_and_equal_brick_by_brick() {
+    let vol = Phantom::SheppLogan.generate(29);
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let s = SampledTf::new(&tf, grid.value_range());
+    for (step, shade, projection) in [
+        (1.0, false, Projection::Orthographic),
+        (0.7, true, Projection::Orthographic),
+        (0.6, false, Projection::Perspective),
+    ] {
+        let with_seed = |seed| RenderSettings {
+            step,
+            ert: 0.95,
+            shade,
+            jitter: seed,
+        };
+        let cls = s.classify(&tf.weights, step);
+        let cam = Camera::orbit(&vol, 35.0, 25.0, 33, 31, projection);
+        let one = RayCaster::new(&vol, &cls, with_seed(Some(1)));
+        let (a, _) = one.render(&cam);
+        let (again, _) = RayCaster::new(&vol, &cls, with_seed(Some(1))).render(&cam);
+        let (other, _) = RayCaster::new(&vol, &cls, with_seed(Some(2))).render(&cam);
+        let (plain, _) = RayCaster::new(&vol, &cls, with_seed(None)).render(&cam);
+        assert!(a.mean_alpha() > 0.05);
+        assert_eq!(a.max_abs_diff(&again), Some(0.0), "same seed, same frame");
+        assert!(
+            a.max_abs_diff(&other).unwrap() > 1e-3,
+            "another seed moves samples"
+        );
+        assert!(
+            a.max_abs_diff(&plain).unwrap() > 1e-3,
+            "jitter moves samples"
+        );
+        assert_eq!(
+            a.max_abs_diff(&render_by_bricks(&grid, &one, &cam)),
+            Some(0.0),
+            "{projection:?} step {step} shade {shade}"
+        );
     }
 }

@@ -56,6 +56,13 @@ impl SceneBuilder {
         self
     }
 
+    /// Jittered ray starts with this seed (see [`crate::render::jitter`]); `None`, the
+    /// default, samples every ray on the unshifted lattice.
+    pub fn jitter(mut self, seed: Option<u32>) -> Self {
+        self.settings.jitter = seed;
+        self
+    }
+
     /// Checks the settings and the family's weights, bricks the volume (unless given a
     /// grid) and tabulates the family over its value range.
     ///

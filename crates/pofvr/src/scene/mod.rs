@@ -277,6 +277,10 @@ impl Scene {
     fn resolve<'s>(&'s self, req: &FrameRequest<'s>) -> Result<(Look<'s>, FrameOptions)> {
         let weights = req.weights.unwrap_or(&self.job.tf.weights);
         check_weights(&self.job.tf, weights)?;
+        let mode = req.cull.mode();
+        if self.job.settings.jitter.is_some() && mode.needs_pofs() {
+            return Err(Error::JitteredPofs { mode });
+        }
         if let Some(p) = req.cull.pofs() {
             if !self.pofs.as_ref().is_some_and(|own| std::ptr::eq(own, p)) {
                 return Err(Error::ForeignPofs);
@@ -307,7 +311,7 @@ impl Scene {
     ///
     /// # Errors
     /// [`Error::WeightCount`], [`Error::Weight`], [`Error::OutOfRange`] (threshold, ranks),
-    /// [`Error::ForeignPofs`], or a failed rank's error.
+    /// [`Error::ForeignPofs`], [`Error::JitteredPofs`], or a failed rank's error.
     pub fn render(&self, req: &FrameRequest<'_>) -> Result<Frame> {
         let (look, opts) = self.resolve(req)?;
         let (image, stats) = frame::frame_with(&self.job, look, self.bound(), req.camera, &opts)?;

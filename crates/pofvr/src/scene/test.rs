@@ -318,3 +318,60 @@ fn a_scene_adopts_a_job_with_its_weights_as_defaults() {
         })
     ));
 }
+
+#[test]
+fn a_jittered_scene_renders_its_brick_frames_equal_to_its_whole_frame() {
+    let (v, tf) = head(36);
+    let s = Scene::builder(v, tf).jitter(Some(11)).build().unwrap();
+    let (plain_v, plain_tf) = head(36);
+    let plain = Scene::builder(plain_v, plain_tf).build().unwrap();
+    for shade in [false, true] {
+        let cam = camera(&s, 40.0);
+        let req = FrameRequest::new(&cam).shade(shade);
+        let whole = s.render_reference(&req).unwrap();
+        assert!(whole.image.mean_alpha() > 0.05);
+        for ranks in [1, 3] {
+            // The ranks' partial images are composited, not carried along each ray: the
+            // order of the additions differs, so the frames agree to float rounding.
+            let bricks = s.render(&req.clone().ranks(ranks)).unwrap();
+            let diff = whole.image.max_abs_diff(&bricks.image).unwrap();
+            assert!(diff <= 1e-6, "ranks {ranks}: {diff}");
+        }
+        let unjittered = plain.render_reference(&req).unwrap();
+        assert!(whole.image.max_abs_diff(&unjittered.image).unwrap() > 1e-3);
+    }
+}
+
+#[test]
+fn a_jittered_scene_refuses_pof_culling_but_culls_exactly() {
+    let (v, tf) = (
+        Phantom::SheppLogan.generate(32),
+        families::for_phantom(Phantom::SheppLogan),
+    );
+    let s = Scene::builder(v, tf)
+        .brick_size(8)
+        .jitter(Some(3))
+        .build()
+        .unwrap();
+    let pofs = s
+        .build_pofs(&PofBuild {
+            views: [4, 4],
+            ..PofBuild::default()
+        })
+        .unwrap();
+    let s = s.with_pofs(pofs).unwrap();
+    let cam = Camera::orbit(s.volume(), 30.0, 20.0, 24, 24, Projection::Orthographic);
+    for cull in [
+        Cull::Pof(s.pofs().unwrap()),
+        Cull::PofSet(s.pofs().unwrap()),
+    ] {
+        let mode = cull.mode();
+        let e = s.render(&FrameRequest::new(&cam).cull(cull)).unwrap_err();
+        assert!(
+            matches!(e, Error::JitteredPofs { mode: m } if m == mode),
+            "{e}"
+        );
+        assert!(!e.to_string().contains("--"), "{e}");
+    }
+    assert!(s.render(&FrameRequest::new(&cam).cull(Cull::Exact)).is_ok());
+}

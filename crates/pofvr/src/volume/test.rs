@@ -971,3 +971,41 @@ fn mutated_files_never_panic() {
         }
     }
 }
+
+/// The largest change between neighbouring voxels along x.
+fn largest_x_step(v: &Volume) -> f32 {
+    let n = v.dims()[0];
+    let value = |i: usize| match v.data() {
+        VoxelData::U8(d) => f32::from(d.as_slice()[i]),
+        VoxelData::F32(d) => d.as_slice()[i],
+        _ => unreachable!("phantoms are u8 or f32"),
+    };
+    (0..v.dims().iter().product::<usize>())
+        .filter(|i| i % n + 1 < n)
+        .map(|i| (value(i + 1) - value(i)).abs())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn the_smooth_head_blends_the_heads_edges_over_several_voxels() {
+    use super::phantom::Phantom;
+    let (sharp, smooth) = (
+        Phantom::SheppLogan.generate(64),
+        Phantom::SmoothHead.generate(64),
+    );
+    assert_eq!(smooth.data_type(), DataType::F32);
+    // The head's skull is one voxel step from air to 250; the smooth head ramps it.
+    assert!(largest_x_step(&sharp) >= 200.0);
+    let step = largest_x_step(&smooth);
+    assert!(step < 80.0, "largest neighbour step {step}");
+    // The same intensities where the head is flat: brain ≈ 50 at the centre, air outside.
+    let at = |v: &Volume, x: usize, y: usize, z: usize| match v.data() {
+        VoxelData::U8(d) => f32::from(d.as_slice()[x + 64 * (y + 64 * z)]),
+        VoxelData::F32(d) => d.as_slice()[x + 64 * (y + 64 * z)],
+        _ => unreachable!(),
+    };
+    assert_eq!(at(&sharp, 32, 20, 40), 50.0);
+    assert!((at(&smooth, 32, 20, 40) - 50.0).abs() < 0.5);
+    assert_eq!(at(&smooth, 0, 0, 0), 0.0);
+    assert_eq!("smooth-head".parse::<Phantom>(), Ok(Phantom::SmoothHead));
+}

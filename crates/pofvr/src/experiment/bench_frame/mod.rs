@@ -1,0 +1,250 @@
+//! `bench frame`: per volume and view, the frame time of each engine shaded and unshaded,
+//! samples per ray against the minimum ([`min_samples`]), and the same frame rendered by
+//! VTK in the same run ([`vtk_peer`]) with the time ratio and the image PSNR.
+
+mod min_samples;
+pub mod npy;
+pub mod vtk_peer;
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::render::{Camera, Image, Projection};
+use crate::{Frame, FrameRequest, Scene};
+
+pub use min_samples::minimum_samples;
+pub use vtk_peer::{PeerVolume, VtkFrame, VtkPeer};
+
+use super::{ExperimentError, Progress};
+
+/// A way of rendering a frame of a [`Scene`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameEngine {
+    /// The whole volume in one pass, no bricks ([`Scene::render_reference`]).
+    Whole,
+    /// Brick by brick, one rank, no culling ([`Scene::render`]).
+    Bricks,
+}
+
+/// The engines measured, in report order; the first is the reference the others' images
+/// are compared with.
+pub const FRAME_ENGINES: [FrameEngine; 2] = [FrameEngine::Whole, FrameEngine::Bricks];
+
+impl FrameEngine {
+    /// The name the report uses.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            FrameEngine::Whole => "whole",
+            FrameEngine::Bricks => "bricks",
+        }
+    }
+
+    fn render(self, scene: &Scene, req: &FrameRequest<'_>) -> crate::Result<Frame> {
+        match self {
+            FrameEngine::Whole => scene.render_reference(req),
+            FrameEngine::Bricks => scene.render(req),
+        }
+    }
+}
+
+/// A volume to measure.
+pub struct FrameVolume {
+    /// The name as given.
+    pub name: String,
+    /// The scene (volume, bricks, family at its default weights).
+    pub scene: Scene,
+}
+
+/// One engine's frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct EngineFrame {
+    /// The engine.
+    pub engine: FrameEngine,
+    /// Median frame time.
+    pub median_ms: f64,
+    /// Samples taken.
+    pub samples: u64,
+    /// Samples per ray that meets the volume.
+    pub samples_per_ray: f64,
+    /// `samples_per_ray` over the minimum.
+    pub samples_over_minimum: f64,
+    /// Largest per-channel difference from the first engine's image.
+    pub max_abs_diff_vs_whole: f32,
+    /// VTK's frame time over this engine's, when VTK was measured.
+    pub vtk_over_pofvr: Option<f64>,
+}
+
+/// VTK's side of one frame: measured, or the reason it was not.
+#[derive(Clone, Debug, Serialize)]
+pub struct VtkCase {
+    /// Whether VTK rendered the frame.
+    pub measured: bool,
+    /// Why not, when not.
+    pub reason: Option<String>,
+    /// The VTK version.
+    pub version: Option<String>,
+    /// Median re-render time.
+    pub median_ms: Option<f64>,
+    /// The first render.
+    pub first_render_ms: Option<f64>,
+    /// PSNR of VTK's float image against the whole-volume image (dB, peak 1).
+    pub psnr_db: Option<f64>,
+}
+
+/// One frame: a volume, a view, shaded or not.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameCase {
+    /// The volume's name as given.
+    pub volume: String,
+    /// Azimuth and elevation, degrees.
+    pub view: [f64; 2],
+    /// Gradient shading.
+    pub shade: bool,
+    /// Rays that meet the volume.
+    pub rays: u64,
+    /// The fewest samples per ray ([`minimum_samples`]).
+    pub min_samples_per_ray: f64,
+    /// Each engine's frame.
+    pub engines: Vec<EngineFrame>,
+    /// VTK's frame.
+    pub vtk: VtkCase,
+}
+
+/// What `bench frame` measures with.
+#[derive(Clone, Debug)]
+pub struct FrameBench {
+    /// Views (azimuth, elevation in degrees), orthographic.
+    pub views: Vec<[f64; 2]>,
+    /// Image size.
+    pub size: (u32, u32),
+    /// Repetitions per engine (at least one; the median is reported).
+    pub reps: usize,
+    /// The VTK peer, or why there is none.
+    pub peer: Result<VtkPeer, String>,
+}
+
+/// Measures every volume at every view, unshaded then shaded, with every engine of
+/// [`FRAME_ENGINES`] and VTK.
+///
+/// # Errors
+/// A frame's error; [`ExperimentError::Check`] when an engine's image differs from the
+/// reference's by more than early termination and float rounding allow.
+pub fn bench_frame(
+    volumes: &[FrameVolume],
+    bench: &FrameBench,
+    progress: &dyn Progress,
+) -> Result<Vec<FrameCase>, ExperimentError> {
+    let per_frame = (FRAME_ENGINES.len() * bench.reps.max(1) + 1) as u64;
+    progress.begin(
+        "bench frame",
+        volumes.len() as u64 * bench.views.len() as u64 * 2 * per_frame,
+    );
+    let mut cases = Vec::new();
+    for (i, fv) in volumes.iter().enumerate() {
+        let scene = &fv.scene;
+        let weights = scene.default_weights();
+        let peer_volume = match &bench.peer {
+            Ok(_) => PeerVolume::write(scene.volume(), i)
+                .map_err(|e| format!("cannot write the raw volume for VTK: {e}")),
+            Err(e) => Err(e.clone()),
+        };
+        for &[az, el] in &bench.views {
+            let (w, h) = bench.size;
+            let cam = Camera::orbit(scene.volume(), az, el, w, h, Projection::Orthographic);
+            let (rays, min_samples) = minimum_samples(scene, weights, &cam);
+            let min_per_ray = min_samples as f64 / rays.max(1) as f64;
+            for shade in [false, true] {
+                let req = FrameRequest::new(&cam).shade(shade);
+                let mut times = vec![Vec::new(); FRAME_ENGINES.len()];
+                let mut frames: Vec<Option<Frame>> = vec![None; FRAME_ENGINES.len()];
+                for _ in 0..bench.reps.max(1) {
+                    // Interleaved, so that every engine sees the same machine.
+                    for (k, engine) in FRAME_ENGINES.iter().enumerate() {
+                        let t = Instant::now();
+                        let f = engine.render(scene, &req)?;
+                        times[k].push(t.elapsed().as_secs_f64() * 1e3);
+                        frames[k] = Some(f);
+                        progress.inc();
+                    }
+                }
+                let frames: Vec<Frame> = frames.into_iter().flatten().collect();
+                let reference = &frames[0].image;
+                // A brick stops its part of a ray at the termination opacity without knowing
+                // what lies in front, so a pixel may take up to `1 − ert` more than the whole
+                // ray, which stops once: that, plus float rounding, is what engines may differ by.
+                let tolerance = (1.0 - scene.early_termination()).max(0.0) + 1e-5;
+                let vtk = match (&bench.peer, &peer_volume) {
+                    (Ok(peer), Ok(pv)) => peer.render(pv, scene.family(), weights, &cam, shade),
+                    (_, Err(e)) => Err(e.clone()),
+                    (Err(e), _) => Err(e.clone()),
+                };
+                progress.inc();
+                let mut engines = Vec::new();
+                for ((engine, t), f) in FRAME_ENGINES.iter().zip(times).zip(&frames) {
+                    let median_ms = median(t);
+                    let diff = reference.max_abs_diff(&f.image).unwrap_or(f32::INFINITY);
+                    if diff > tolerance {
+                        return Err(ExperimentError::Check(format!(
+                            "{}: the {} engine's image differs from the whole frame by {diff}",
+                            fv.name,
+                            engine.name()
+                        )));
+                    }
+                    let per_ray = f.stats.samples as f64 / rays.max(1) as f64;
+                    engines.push(EngineFrame {
+                        engine: *engine,
+                        median_ms,
+                        samples: f.stats.samples,
+                        samples_per_ray: per_ray,
+                        samples_over_minimum: per_ray / min_per_ray,
+                        max_abs_diff_vs_whole: diff,
+                        vtk_over_pofvr: vtk.as_ref().ok().map(|v| v.median_ms / median_ms),
+                    });
+                }
+                cases.push(FrameCase {
+                    volume: fv.name.clone(),
+                    view: [az, el],
+                    shade,
+                    rays,
+                    min_samples_per_ray: min_per_ray,
+                    engines,
+                    vtk: vtk_case(vtk, reference),
+                });
+            }
+        }
+    }
+    progress.end();
+    Ok(cases)
+}
+
+fn vtk_case(vtk: Result<VtkFrame, String>, reference: &Image) -> VtkCase {
+    match vtk {
+        Ok(v) => VtkCase {
+            measured: true,
+            reason: None,
+            version: v.vtk,
+            median_ms: Some(v.median_ms),
+            first_render_ms: v.first_render_ms,
+            psnr_db: npy::psnr(&v.image, reference),
+        },
+        Err(reason) => VtkCase {
+            measured: false,
+            reason: Some(reason),
+            version: None,
+            median_ms: None,
+            first_render_ms: None,
+            psnr_db: None,
+        },
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+#[cfg(test)]
+mod test;
