@@ -502,7 +502,9 @@ pub(crate) fn march_with(
         shade: look.shade,
         ..job.settings
     };
+    let t = Instant::now();
     let (image, st) = RayCaster::new(&job.volume, &cls, settings).render_march(camera, &occ);
+    let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut stats = FrameStats::from_rays(st.rays, start.elapsed().as_secs_f64(), "march");
     stats.skipped_samples = st.skipped_samples;
     stats.occupancy_ms = occupancy_ms;
@@ -521,6 +523,16 @@ pub(crate) fn march_with(
         culled: 0,
         visible: job.grid.len() - empty,
     };
+    // One rank: this process, which ray-casts through every visible brick.
+    stats.ranks = vec![RankStats {
+        rank: 0,
+        bricks_rendered: job.grid.len() - empty,
+        samples: st.rays.samples,
+        raycast_ms,
+        rays: st.rays.rays,
+        resident_bytes: resident_bytes(),
+        ..RankStats::default()
+    }];
     (image, stats)
 }
 
