@@ -59,6 +59,9 @@ struct Axis {
     max: f32,
     /// The last trilinear cell.
     last: f32,
+    /// `1 / (d·step)`: lattice indices per unit of index space along this axis, for the
+    /// estimate of a plane crossing (the search settles it exactly).
+    per_unit: f64,
 }
 
 impl Axis {
@@ -92,9 +95,9 @@ impl Axis {
             }
             b << shift
         };
-        let t = (f64::from(plane) - f64::from(self.o)) / f64::from(self.d);
-        let guess = (t / f64::from(self.step)).ceil();
-        let guess = guess.clamp(f64::from(k + 1), f64::from(end)) as i32;
+        // Truncated, plus one: a ceiling for the estimate without a libm call.
+        let guess = (f64::from(plane) - f64::from(self.o)) * self.per_unit;
+        let guess = (guess.clamp(f64::from(k), f64::from(end - 1)) as i32 + 1).clamp(k + 1, end);
         first_true(k, end, guess, |j| self.cell(j) >> shift != b)
     }
 }
@@ -200,6 +203,7 @@ impl RayCaster<'_> {
             step,
             max: tri.max[a],
             last: tri.last_cell[a] as f32,
+            per_unit: 1.0 / (f64::from(ray.d[a]) * f64::from(step)),
         });
         let mut k = k0;
         // Per axis: the sample's occupancy cell, and the first sample in the next one.
