@@ -143,7 +143,9 @@ impl Occupancy {
         for (b, s) in view.rgba.iter().enumerate() {
             below[b + 1] = below[b] + u32::from(s[3] != 0.0);
         }
-        // The classifier's bin of `v` (`ClassifierView::sample`), monotone in `v`.
+        // The classifier's bin of `v` (`ClassifierView::sample`), monotone in `v`; not
+        // clamp, as there: `max` maps NaN to bin 0.
+        #[allow(clippy::manual_clamp)]
         let bin = |v: f32| ((v - view.lo) * view.scale).max(0.0).min(BIN_MAX) as usize;
         let cell: Vec<bool> = ranges
             .range

@@ -78,7 +78,7 @@ fn march_equals_reference_on_the_phantoms() {
                         step: [1.0, 0.5, 0.7][i % 3],
                         ert: [0.99, 2.0, 0.6]
                             [(i + usize::from(projection == Projection::Perspective)) % 3],
-                        shade: (i + weights.len()) % 2 == 0,
+                        shade: (i + weights.len()).is_multiple_of(2),
                     };
                     let cam = Camera::orbit(vol, az, el, 40, 36, projection);
                     compare(vol, tf, &weights, settings, &cam);
