@@ -12,7 +12,9 @@
 //! exactly the samples whose cells are occupied, every skipped sample classifies to zero
 //! opacity (which composites to nothing), and the samples marched go through the same
 //! sample loops ([`super::arch::march`], AVX2 or SSE2, scalar when shading) with the same
-//! accumulator: the image equals the reference bit for bit.
+//! accumulator: the image equals the reference bit for bit. Marching a sample of zero
+//! opacity changes nothing either, so blocks whose cells are mostly occupied are marched
+//! through whole, without walking their cells.
 
 use rayon::prelude::*;
 
@@ -242,8 +244,18 @@ impl RayCaster<'_> {
                 }
                 continue;
             }
-            let to = next[0].min(next[1]).min(next[2]);
-            if occ.cell(cell) {
+            let b = cell.map(|c| c >> shift);
+            let dense = occ.dense(b);
+            let to = if dense {
+                // Through the whole block: the first sample in another.
+                (0..3)
+                    .map(|a| axes[a].next(k, k1, BLOCK_SHIFT, b[a]))
+                    .min()
+                    .unwrap_or(k1)
+            } else {
+                next[0].min(next[1]).min(next[2])
+            };
+            if dense || occ.cell(cell) {
                 let r = *run.get_or_insert(k);
                 if to - r >= RUN_MAX {
                     run = None;
@@ -260,6 +272,12 @@ impl RayCaster<'_> {
                 st.skipped_samples += (to - k) as u64;
             }
             k = to;
+            if dense {
+                if k < k1 {
+                    enter(k, &mut cell, &mut next);
+                }
+                continue;
+            }
             if k < k1 {
                 for a in 0..3 {
                     if next[a] == k {

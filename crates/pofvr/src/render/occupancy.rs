@@ -130,6 +130,10 @@ pub struct Occupancy {
     cell: Vec<bool>,
     blocks: [usize; 3],
     block: Vec<bool>,
+    /// Blocks where at least half the cells are occupied: the engine marches through them
+    /// without walking their cells, whose crossings would cost more than the few empty
+    /// samples they skip (marching a sample of zero opacity changes nothing).
+    dense: Vec<bool>,
 }
 
 impl Occupancy {
@@ -159,21 +163,30 @@ impl Occupancy {
             .collect();
         let cells = ranges.cells;
         let blocks = cells.map(|n| n.div_ceil(BLOCK));
-        let mut block = vec![false; blocks[0] * blocks[1] * blocks[2]];
+        let n = blocks[0] * blocks[1] * blocks[2];
+        let (mut occupied, mut all) = (vec![0u32; n], vec![0u32; n]);
         for z in 0..cells[2] {
             for y in 0..cells[1] {
                 let row = &cell[(z * cells[1] + y) * cells[0]..][..cells[0]];
                 let b = ((z / BLOCK) * blocks[1] + y / BLOCK) * blocks[0];
                 for (x, &occ) in row.iter().enumerate() {
-                    block[b + x / BLOCK] |= occ;
+                    occupied[b + x / BLOCK] += u32::from(occ);
+                    all[b + x / BLOCK] += 1;
                 }
             }
         }
+        let block = occupied.iter().map(|o| *o > 0).collect();
+        let dense = occupied
+            .iter()
+            .zip(&all)
+            .map(|(o, a)| 2 * o >= *a)
+            .collect();
         Occupancy {
             cells,
             cell,
             blocks,
             block,
+            dense,
         }
     }
 
@@ -191,6 +204,14 @@ impl Occupancy {
     pub fn block(&self, b: [u32; 3]) -> bool {
         let [bx, by, _] = self.blocks;
         self.block[(b[2] as usize * by + b[1] as usize) * bx + b[0] as usize]
+    }
+
+    /// Whether block `b` is occupied and dense (see the field).
+    #[inline(always)]
+    #[must_use]
+    pub(crate) fn dense(&self, b: [u32; 3]) -> bool {
+        let [bx, by, _] = self.blocks;
+        self.dense[(b[2] as usize * by + b[1] as usize) * bx + b[0] as usize]
     }
 
     /// Occupied cells, and all cells.
