@@ -198,6 +198,12 @@ pub(crate) struct FrameArgs {
     /// renderer that culled frames are checked against).
     #[arg(long, conflicts_with = "cull")]
     pub(crate) whole: bool,
+    /// Renderer: march (one process, no culling: each ray walks the whole volume, skips
+    /// empty space and stops at --ert; the --whole image) or bricks (the brick path that
+    /// --cull, --ranks and MPI use).
+    /// > default: march for one process without --cull, --pof or --ranks above 1, otherwise bricks
+    #[arg(long, conflicts_with = "whole")]
+    pub(crate) engine: Option<String>,
     /// Precomputed POFs (`pofvr pof build`) for --cull pof and pof-set.
     #[arg(long, value_name = "FILE.pof")]
     pub(crate) pof: Option<PathBuf>,

@@ -644,3 +644,56 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
         "{vtk}"
     );
 }
+
+#[test]
+fn the_engine_is_march_by_default_for_one_process_and_equals_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let common = [
+        "render",
+        "phantom:head:40",
+        "--size",
+        "40x30",
+        "--view",
+        "30,20",
+    ];
+    let run = |extra: &[&str], name: &str| {
+        let mut args = common.to_vec();
+        let raw = format!("{name}.raw");
+        let stats = format!("{name}.json");
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", "o.png", "--out-raw", &raw, "--stats", &stats]);
+        let o = pofvr(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        let s: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+        (std::fs::read(d.join(&raw)).unwrap(), s)
+    };
+    let (march, s) = run(&[], "march");
+    assert_eq!(s["engine"], "march", "{s}");
+    assert!(s["samples_per_ray"].as_f64().unwrap() > 0.0, "{s}");
+    assert!(s["skipped_samples"].as_u64().unwrap() > 0, "{s}");
+    assert!(s["occupancy_ms"].is_number(), "{s}");
+    let (whole, w) = run(&["--whole"], "whole");
+    assert_eq!(w["engine"], "whole", "{w}");
+    assert_eq!(march, whole, "the march image is the --whole image");
+    assert!(s["samples_per_ray"].as_f64() < w["samples_per_ray"].as_f64());
+    let (_, b) = run(&["--engine", "bricks"], "bricks");
+    assert_eq!(b["engine"], "bricks", "{b}");
+    let (_, c) = run(&["--cull", "exact"], "culled");
+    assert_eq!(c["engine"], "bricks", "{c}");
+    for (extra, flag) in [
+        (
+            &["--engine", "march", "--cull", "exact"][..],
+            "--cull exact",
+        ),
+        (&["--engine", "march", "--ranks", "2"][..], "--ranks 2"),
+        (&["--engine", "vtk"][..], "--engine"),
+    ] {
+        let mut args = common.to_vec();
+        args.extend_from_slice(extra);
+        let o = pofvr(&args, d);
+        assert!(!o.status.success(), "{extra:?}");
+        assert!(stderr(&o).contains(flag), "{extra:?}: {}", stderr(&o));
+    }
+}

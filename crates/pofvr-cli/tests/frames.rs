@@ -67,6 +67,9 @@ fn an_orbit_is_the_views_it_passes_and_stats_have_one_entry_per_frame() {
                 "48x40",
                 "--view",
                 v,
+                // The orbit is rendered by the brick engine (--ranks 2): so are the views.
+                "--engine",
+                "bricks",
                 "--out",
                 "v.png",
                 "--out-raw",

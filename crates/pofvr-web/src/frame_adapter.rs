@@ -30,7 +30,9 @@ pub struct Look {
 }
 
 /// Renders one frame of `scene` seen by `camera` with `look` and `opts` (its cull mode,
-/// threshold, ranks, curve and replicas).
+/// threshold, ranks, curve and replicas), with the scene's engine for them: the march
+/// engine for one rank without culling (the frames while dragging), the brick engine
+/// otherwise.
 ///
 /// # Errors
 /// [`pofvr::Error::NoPofs`] for a POF mode on a scene without POFs, or the frame's error
@@ -58,7 +60,7 @@ pub fn render(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use pofvr::frame::{render_frame, RenderJob};
+    use pofvr::frame::{render_reference, RenderJob};
     use pofvr::render::{families, Projection, RenderSettings};
     use pofvr::volume::phantom::Phantom;
 
@@ -107,7 +109,8 @@ mod tests {
             ..RenderSettings::default()
         };
         let direct = RenderJob::new(Phantom::SheppLogan.generate(32), tf, 16, settings).unwrap();
-        let (ib_direct, _) = render_frame(&direct, None, &cam, &opts).unwrap();
+        // One rank, no culling: the march engine, which gives the reference's image.
+        let (ib_direct, _) = render_reference(&direct, &cam);
         assert_eq!(ib.image.pixels(), ib_direct.pixels());
     }
 

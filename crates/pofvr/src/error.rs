@@ -158,6 +158,15 @@ pub enum Error {
     /// A [`crate::Cull`] carrying another scene's POFs.
     #[error("the frame's POFs belong to another scene: take them from the scene rendered")]
     ForeignPofs,
+    /// A frame asked of an engine that cannot render it (the march engine is one process,
+    /// unculled, over the whole volume).
+    #[error("the {engine} engine cannot render this frame: {why}")]
+    Engine {
+        /// The engine asked for.
+        engine: &'static str,
+        /// What the frame asks that the engine does not do.
+        why: String,
+    },
     /// The ranks of a frame disagreed on what they exchanged.
     #[error("frame gather: {why}")]
     Gather {

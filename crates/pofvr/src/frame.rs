@@ -17,7 +17,8 @@ use crate::distribute::{BrickAssignment, Curve, DistributeError};
 use crate::error::{OutOfRange, Setting, Value};
 use crate::pof::{PofError, PofTable};
 use crate::render::{
-    Camera, Image, RayCaster, RayStats, RenderSettings, SampledTf, TfError, TransferFunction,
+    Camera, CellRanges, Image, IndexRay, Occupancy, RayCaster, RayStats, RenderSettings, SampledTf,
+    TfError, TransferFunction,
 };
 use crate::volume::Volume;
 
@@ -304,6 +305,16 @@ pub struct FrameStats {
     /// Ids of the culled bricks (for overlays and experiments).
     #[serde(skip)]
     pub culled_bricks: Vec<BrickId>,
+    /// The renderer: "march", "bricks", or "whole" (the whole-volume reference).
+    pub engine: &'static str,
+    /// Samples per ray that met the volume (`samples` over those rays, whatever the
+    /// engine; the brick path's `rays` count a ray once per brick).
+    pub samples_per_ray: f64,
+    /// Lattice samples in empty space the march engine jumped over (0 for the others).
+    pub skipped_samples: u64,
+    /// The march engine's rebuild of the occupancy for the frame's weights, in
+    /// milliseconds, inside `frame_ms` (0 for the others).
+    pub occupancy_ms: f64,
 }
 
 /// Brick counts of a frame.
@@ -411,7 +422,7 @@ impl FrameError {
 }
 
 impl FrameStats {
-    fn from_rays(st: RayStats, seconds: f64) -> Self {
+    fn from_rays(st: RayStats, seconds: f64, engine: &'static str) -> Self {
         let sps = if seconds > 0.0 {
             st.samples as f64 / seconds
         } else {
@@ -423,6 +434,8 @@ impl FrameStats {
             samples: st.samples,
             samples_per_second: sps,
             threads: rayon::current_num_threads(),
+            engine,
+            samples_per_ray: st.samples as f64 / st.rays.max(1) as f64,
             ..FrameStats::default()
         }
     }
@@ -469,8 +482,81 @@ pub(crate) fn reference_with(
     let (image, st) = RayCaster::new(&job.volume, &cls, settings).render(camera);
     (
         image,
-        FrameStats::from_rays(st, start.elapsed().as_secs_f64()),
+        FrameStats::from_rays(st, start.elapsed().as_secs_f64(), "whole"),
     )
+}
+
+/// Renders the whole volume with the march engine, the reference's image bit for bit:
+/// the occupancy of `cells` is rebuilt for `look`'s weights (timed inside the frame).
+pub(crate) fn march_with(
+    job: &RenderJob,
+    look: Look<'_>,
+    cells: &CellRanges,
+    camera: &Camera,
+) -> (Image, FrameStats) {
+    let start = Instant::now();
+    let cls = job.sampled.classify(look.weights, job.settings.step);
+    let occ = Occupancy::new(cells, &cls);
+    let occupancy_ms = start.elapsed().as_secs_f64() * 1e3;
+    let settings = RenderSettings {
+        shade: look.shade,
+        ..job.settings
+    };
+    let t = Instant::now();
+    let (image, st) = RayCaster::new(&job.volume, &cls, settings).render_march(camera, &occ);
+    let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mut stats = FrameStats::from_rays(st.rays, start.elapsed().as_secs_f64(), "march");
+    stats.skipped_samples = st.skipped_samples;
+    stats.occupancy_ms = occupancy_ms;
+    // No brick is culled, and none is projected: every non-empty one counts as visible.
+    let empty = job
+        .grid
+        .ranges()
+        .iter()
+        .filter(|r| job.sampled.is_empty(**r, look.weights))
+        .count();
+    stats.cull = Some(CullMode::None);
+    stats.bricks = BrickCounts {
+        total: job.grid.len(),
+        empty,
+        non_empty: job.grid.len() - empty,
+        culled: 0,
+        visible: job.grid.len() - empty,
+    };
+    // One rank: this process, which ray-casts through every visible brick.
+    stats.ranks = vec![RankStats {
+        rank: 0,
+        bricks_rendered: job.grid.len() - empty,
+        samples: st.rays.samples,
+        raycast_ms,
+        rays: st.rays.rays,
+        resident_bytes: resident_bytes(),
+        ..RankStats::default()
+    }];
+    (image, stats)
+}
+
+/// Pixels of `camera` whose ray meets `volume`: what the brick path's samples per ray
+/// are counted over.
+fn rays_meeting(volume: &Volume, camera: &Camera) -> u64 {
+    let frame = camera.frame();
+    let vbox = crate::brick::IndexBox {
+        lo: [0.0; 3],
+        hi: volume.dims().map(|d| (d - 1) as f32),
+    };
+    (0..camera.height)
+        .into_par_iter()
+        .map(|y| {
+            (0..camera.width)
+                .filter(|&x| {
+                    let r = camera.ray(&frame, f64::from(x) + 0.5, f64::from(y) + 0.5);
+                    IndexRay::new(&r, volume.spacing(), volume.unit())
+                        .span(&vbox)
+                        .is_some()
+                })
+                .count() as u64
+        })
+        .sum()
 }
 
 /// Renders a frame the paper's way (§3.3, §4) with `opts.ranks` in-process ranks: the same
@@ -511,7 +597,10 @@ pub(crate) fn frame_with(
     }
 }
 
-fn check_options(bounds: Option<&dyn OpacityBound>, opts: &FrameOptions) -> Result<(), FrameError> {
+pub(crate) fn check_options(
+    bounds: Option<&dyn OpacityBound>,
+    opts: &FrameOptions,
+) -> Result<(), FrameError> {
     if opts.cull.needs_pofs() && bounds.is_none() {
         return Err(FrameError::NoPofs(opts.cull));
     }
@@ -770,7 +859,9 @@ fn rank_frame(
         rays: ranks.iter().map(|r| r.rays).sum(),
         samples: ranks.iter().map(|r| r.samples).sum(),
     };
-    let mut stats = FrameStats::from_rays(total, start.elapsed().as_secs_f64());
+    let mut stats = FrameStats::from_rays(total, start.elapsed().as_secs_f64(), "bricks");
+    // Counted after the frame's time is taken: the brick path never needs it.
+    stats.samples_per_ray = total.samples as f64 / rays_meeting(&job.volume, camera).max(1) as f64;
     let n_visible = visible.iter().filter(|v| **v).count();
     stats.cull = Some(opts.cull);
     stats.bricks = BrickCounts {

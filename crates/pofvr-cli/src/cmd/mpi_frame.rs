@@ -39,6 +39,10 @@ impl Backend for Mpi<'_> {
         Ok(self.0.render(scene, request)?)
     }
 
+    fn distributed(&self) -> bool {
+        true
+    }
+
     fn grid(&self, volume: &Volume, brick_size: usize, curve: Curve) -> Result<BrickGrid> {
         Ok(self.0.measure_grid(volume, brick_size, curve)?)
     }

@@ -7,7 +7,7 @@ use pofvr::distribute::Curve;
 use pofvr::frame::{FrameStats, RenderJob};
 use pofvr::render::{Camera, Image};
 use pofvr::volume::Volume;
-use pofvr::{CullMode, Frame, FrameRequest, Pofs, Scene};
+use pofvr::{CullMode, Engine, Frame, FrameRequest, Pofs, Scene};
 
 use crate::args::RenderArgs;
 use crate::progress::Ui;
@@ -33,6 +33,11 @@ pub(crate) trait Backend {
     /// keeps private copies of its own bricks and lets the volume's mapped pages go.
     fn prepare(&self, _job: &mut RenderJob, _curve: Curve, _replicas: usize) -> Result<()> {
         Ok(())
+    }
+
+    /// True when the frame is shared by the processes of an MPI job (the brick engine only).
+    fn distributed(&self) -> bool {
+        false
     }
 
     /// Called on every rank after the last frame; the root returns extra `--stats` fields.
@@ -159,6 +164,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         Some(cull)
     };
     let scene = scene;
+    let engine = engine(&a.frame, backend.distributed())?;
     let cull = match mode {
         Some(m) => Some(scene.cull(m).ok_or_else(|| {
             anyhow!(
@@ -178,6 +184,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             Some(cull) => backend.frame(
                 &scene,
                 &request
+                    .engine(engine)
                     .cull(cull)
                     .threshold(a.frame.cull_threshold)
                     .ranks(a.frame.ranks)
@@ -253,6 +260,38 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         );
     }
     Ok(())
+}
+
+/// The engine of `--engine`, or by default march for one process without `--cull`,
+/// `--pof` or `--ranks` above 1, bricks otherwise; march with any of those is an error.
+pub(crate) fn engine(a: &crate::args::FrameArgs, distributed: bool) -> Result<Engine> {
+    let conflict = if distributed {
+        Some("an MPI job".to_owned())
+    } else if let Some(c) = &a.cull {
+        Some(format!("--cull {c}"))
+    } else if a.pof.is_some() {
+        Some("--pof (which culls with --cull pof)".to_owned())
+    } else if a.ranks > 1 {
+        Some(format!("--ranks {}", a.ranks))
+    } else {
+        None
+    };
+    match a.engine.as_deref() {
+        None => Ok(if conflict.is_some() {
+            Engine::Bricks
+        } else {
+            Engine::March
+        }),
+        Some(s) => {
+            let e: Engine = s.parse().map_err(|e: String| anyhow!("--engine: {e}"))?;
+            if let (Engine::March, Some(c)) = (e, conflict) {
+                bail!(
+                    "--engine march renders one process without culling; it cannot be used with {c} (use --engine bricks)"
+                );
+            }
+            Ok(e)
+        }
+    }
 }
 
 /// The camera turned by `degrees` about the world Y axis through its focal point (the

@@ -6,7 +6,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::frame::RenderJob;
-use crate::render::{Camera, Projection, RayCaster, RenderSettings};
+use crate::render::{Camera, CellRanges, Occupancy, Projection, RayCaster, RenderSettings};
 
 use super::{ExperimentError, Progress};
 
@@ -32,6 +32,13 @@ pub struct RenderCase {
     pub one_sample_loop_ms: Option<f64>,
     /// `one_sample_loop_ms / median_ms`.
     pub speedup_over_one_sample_loop: Option<f64>,
+    /// The same frame by the march engine (reps interleaved), occupancy rebuild included:
+    /// median time, samples taken and lattice samples skipped as empty.
+    pub march_ms: f64,
+    /// Samples the march engine took.
+    pub march_samples: u64,
+    /// Samples the march engine skipped in empty space.
+    pub march_skipped_samples: u64,
 }
 
 /// The views of the bench: (name, azimuth, elevation).
@@ -52,6 +59,7 @@ pub fn bench_render(
     let threads = rayon::current_num_threads();
     let mut cases = Vec::new();
     for (name, job) in jobs {
+        let cells = CellRanges::new(&job.volume);
         for (view, az, el) in VIEWS {
             for ert in [true, false] {
                 let settings = RenderSettings {
@@ -63,8 +71,10 @@ pub fn bench_render(
                 let caster = RayCaster::new(&job.volume, &cls, settings);
                 let one = RayCaster::new(&job.volume, &cls, settings).with_avx2(false);
                 let compare = caster.simd() != one.simd();
-                let (mut times, mut one_times) = (Vec::new(), Vec::new());
+                let (mut times, mut one_times, mut march_times) =
+                    (Vec::new(), Vec::new(), Vec::new());
                 let mut samples = 0;
+                let mut march = crate::render::MarchStats::default();
                 for _ in 0..reps.max(1) {
                     let t = Instant::now();
                     let (_, st) = caster.render(&cam);
@@ -81,6 +91,10 @@ pub fn bench_render(
                             )));
                         }
                     }
+                    let t = Instant::now();
+                    let occ = Occupancy::new(&cells, &cls);
+                    (_, march) = caster.render_march(&cam, &occ);
+                    march_times.push(t.elapsed().as_secs_f64());
                     progress.inc();
                 }
                 let med = median(times).unwrap_or(f64::NAN);
@@ -95,6 +109,9 @@ pub fn bench_render(
                     simd: caster.simd(),
                     one_sample_loop_ms: one_med.map(|m| m * 1e3),
                     speedup_over_one_sample_loop: one_med.map(|m| m / med),
+                    march_ms: median(march_times).unwrap_or(f64::NAN) * 1e3,
+                    march_samples: march.rays.samples,
+                    march_skipped_samples: march.skipped_samples,
                 });
             }
         }

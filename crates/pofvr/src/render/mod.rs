@@ -5,6 +5,8 @@
 //! - `jitter`: seeded per-pixel offsets of the first sample (reproducible, off by default).
 //! - `sampler`: the trilinear sampler, the one definition of a sample's value.
 //! - `ray_caster`: whole-volume and per-box renders ([`RayCaster`]).
+//! - `occupancy` and `march`: the cells that can hold opacity for a classification, and
+//!   the whole-volume render that skips the others ([`RayCaster::render_march`]).
 //! - `arch`: the sample loops, `arch/generic.rs` the scalar reference (and shading),
 //!   `arch/x86_64/{sse2,avx2}.rs` the vector loops that equal it bit for bit.
 
@@ -14,13 +16,19 @@ pub mod families;
 pub mod image;
 pub mod jitter;
 mod lattice;
+pub mod march;
+pub mod occupancy;
 pub mod ray_caster;
 pub(crate) mod sampler;
 #[cfg(test)]
 mod test;
+#[cfg(test)]
+mod test_march;
 pub mod transfer_function;
 
 pub use camera::{Camera, PixelRect, Projection, Ray, ViewFrame};
 pub use image::Image;
+pub use march::MarchStats;
+pub use occupancy::{CellRanges, Occupancy};
 pub use ray_caster::{IndexRay, RayCaster, RayStats, RenderSettings};
 pub use transfer_function::{Classifier, SampledTf, TfError, TransferFunction};

@@ -113,6 +113,11 @@ impl<'a> RayCaster<'a> {
         arch::name(&self.params)
     }
 
+    /// The volume.
+    pub(super) fn volume(&self) -> &'a Volume {
+        self.volume
+    }
+
     /// The settings.
     #[must_use]
     pub fn settings(&self) -> RenderSettings {

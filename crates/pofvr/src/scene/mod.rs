@@ -7,6 +7,7 @@
 //! rendering with its own camera, weights, shading and cull mode.
 
 mod builder;
+mod engine;
 mod output;
 pub(crate) mod pofs;
 mod request;
@@ -14,9 +15,10 @@ mod request;
 mod test;
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 pub use builder::SceneBuilder;
+pub use engine::Engine;
 pub use output::Frame;
 pub use pofs::{PofBuild, Pofs};
 pub use request::{Cull, FrameRequest};
@@ -29,7 +31,7 @@ use crate::distribute::{BrickAssignment, Curve};
 use crate::error::{Error, Result};
 use crate::frame::{self, FrameOptions, Look, RenderJob};
 use crate::pof::PofTable;
-use crate::render::{SampledTf, TransferFunction};
+use crate::render::{CellRanges, SampledTf, TransferFunction};
 use crate::volume::Volume;
 
 /// One volume ready to render: see the [module](self) and [`Scene::builder`].
@@ -38,6 +40,9 @@ pub struct Scene {
     /// brick copies and the deal cache. Its shading flag is unused: shading is per frame.
     job: RenderJob,
     pofs: Option<Pofs>,
+    /// The value ranges of the volume's 4³ cells, which the march engine's occupancy is
+    /// rebuilt from for each frame's weights: measured once, on the first march frame.
+    cells: OnceLock<CellRanges>,
 }
 
 impl std::fmt::Debug for Scene {
@@ -100,7 +105,11 @@ impl Scene {
     /// Wraps a job whose settings are checked.
     fn adopt(mut job: RenderJob) -> Scene {
         job.settings.shade = false;
-        Scene { job, pofs: None }
+        Scene {
+            job,
+            pofs: None,
+            cells: OnceLock::new(),
+        }
     }
 
     /// The volume.
@@ -306,29 +315,82 @@ impl Scene {
         self.pofs.as_ref().map(Pofs::bound)
     }
 
-    /// Renders one frame with `req.ranks` in-process ranks (paper §3.3, §4): the same image
-    /// for any rank count, curve or replicas.
+    /// The engine `req` is rendered with: its own, or by default [`Engine::March`] for one
+    /// rank with no culling on a scene holding the whole volume, [`Engine::Bricks`]
+    /// otherwise.
+    ///
+    /// # Errors
+    /// [`Error::Engine`] when `req` asks the march engine for culling, more than one rank,
+    /// or a scene that holds private brick copies instead of the volume.
+    pub fn engine(&self, req: &FrameRequest<'_>) -> Result<Engine> {
+        let why = if req.ranks > 1 {
+            Some(format!("it renders one process, got {} ranks", req.ranks))
+        } else if req.cull.mode() != CullMode::None {
+            Some(format!(
+                "it does not cull, got cull mode {}",
+                req.cull.mode().name()
+            ))
+        } else if self.job.bricks.is_some() {
+            Some("it needs the whole volume, the scene holds brick copies".to_owned())
+        } else {
+            None
+        };
+        match (req.engine, why) {
+            (Some(Engine::March), Some(why)) => Err(Error::Engine {
+                engine: Engine::March.name(),
+                why,
+            }),
+            (Some(e), _) => Ok(e),
+            (None, None) => Ok(Engine::March),
+            (None, Some(_)) => Ok(Engine::Bricks),
+        }
+    }
+
+    /// The value ranges of the volume's 4³ cells, measured on first use.
+    #[must_use]
+    pub fn cell_ranges(&self) -> &CellRanges {
+        self.cells.get_or_init(|| CellRanges::new(&self.job.volume))
+    }
+
+    /// Renders one frame with [`Scene::engine`]: the march engine, or the brick path with
+    /// `req.ranks` in-process ranks (paper §3.3, §4). The same image for any engine, rank
+    /// count, curve or replicas.
     ///
     /// # Errors
     /// [`Error::WeightCount`], [`Error::Weight`], [`Error::OutOfRange`] (threshold, ranks),
-    /// [`Error::ForeignPofs`], [`Error::JitteredPofs`], or a failed rank's error.
+    /// [`Error::ForeignPofs`], [`Error::JitteredPofs`], [`Error::Engine`], or a failed rank's
+    /// error.
     pub fn render(&self, req: &FrameRequest<'_>) -> Result<Frame> {
         let (look, opts) = self.resolve(req)?;
+        if self.engine(req)? == Engine::March {
+            frame::check_options(self.bound(), &opts)?;
+            let cells = self.cell_ranges();
+            let (image, stats) = frame::march_with(&self.job, look, cells, req.camera);
+            return Ok(Frame { image, stats });
+        }
         let (image, stats) = frame::frame_with(&self.job, look, self.bound(), req.camera, &opts)?;
         Ok(Frame { image, stats })
     }
 
     /// This process's part of a frame rendered by every rank of `comm` (its size is the
-    /// rank count; `req.ranks` is not read). Rank 0 gets the frame, the others `None`.
+    /// rank count; `req.ranks` is not read) with the brick engine. Rank 0 gets the frame,
+    /// the others `None`.
     ///
     /// # Errors
-    /// As [`Scene::render`]; a failing rank aborts `comm` so that no peer waits forever.
+    /// As [`Scene::render`] ([`Error::Engine`] when `req` asks for the march engine); a
+    /// failing rank aborts `comm` so that no peer waits forever.
     pub fn render_on(
         &self,
         comm: &dyn Communicator,
         req: &FrameRequest<'_>,
     ) -> Result<Option<Frame>> {
         let (look, opts) = self.resolve(req)?;
+        if req.engine == Some(Engine::March) {
+            return Err(Error::Engine {
+                engine: Engine::March.name(),
+                why: "it renders one process, not the ranks of a communicator".to_owned(),
+            });
+        }
         let opts = FrameOptions { ranks: 1, ..opts };
         let frame = frame::frame_on_with(comm, &self.job, look, self.bound(), req.camera, &opts)?;
         Ok(frame.map(|(image, stats)| Frame { image, stats }))

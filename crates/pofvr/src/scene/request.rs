@@ -5,7 +5,7 @@ use crate::cull::CullMode;
 use crate::distribute::Curve;
 use crate::render::Camera;
 
-use super::Pofs;
+use super::{Engine, Pofs};
 
 /// How a frame culls bricks. The POF modes carry the POFs they read, taken from the scene
 /// ([`crate::Scene::pofs`]), so a POF mode without POFs cannot be asked for.
@@ -87,6 +87,9 @@ pub struct FrameRequest<'a> {
     /// Owners per brick: 1 renders each brick on the rank it was dealt to; 2 on the less
     /// loaded of two ([`crate::distribute::BrickAssignment`]). Default 1.
     pub replicas: usize,
+    /// The renderer. Default `None`: [`Engine::March`] for one rank with no culling on a
+    /// scene that holds the whole volume, [`Engine::Bricks`] otherwise.
+    pub engine: Option<Engine>,
 }
 
 impl<'a> FrameRequest<'a> {
@@ -103,6 +106,7 @@ impl<'a> FrameRequest<'a> {
             ranks: 1,
             curve: Curve::Hilbert,
             replicas: 1,
+            engine: None,
         }
     }
 
@@ -145,6 +149,14 @@ impl<'a> FrameRequest<'a> {
     #[must_use]
     pub fn curve(mut self, curve: Curve) -> Self {
         self.curve = curve;
+        self
+    }
+
+    /// Rendered by this engine ([`crate::Scene::render`] refuses [`Engine::March`] with
+    /// culling or more than one rank).
+    #[must_use]
+    pub fn engine(mut self, engine: Engine) -> Self {
+        self.engine = Some(engine);
         self
     }
 

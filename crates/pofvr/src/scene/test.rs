@@ -104,7 +104,8 @@ fn facade_frames_are_the_legacy_frames_bit_for_bit() {
                 .shade(true)
                 .cull(s.cull(mode).unwrap())
                 .ranks(ranks)
-                .threshold(0.9);
+                .threshold(0.9)
+                .engine(Engine::Bricks);
             let frame = s.render(&req).unwrap();
             let opts = FrameOptions {
                 cull: mode,
@@ -149,7 +150,10 @@ fn pofs_built_from_a_scene_take_its_step_and_threshold() {
     let culled = s
         .render(&FrameRequest::new(&cam).cull(Cull::Pof(pofs)))
         .unwrap();
-    let none = s.render(&FrameRequest::new(&cam)).unwrap();
+    // The threshold rule compares with the brick path's unculled frame.
+    let none = s
+        .render(&FrameRequest::new(&cam).engine(Engine::Bricks))
+        .unwrap();
     assert_eq!(culled.stats.cull, Some(CullMode::Pof));
     assert_eq!(none.stats.cull, Some(CullMode::None));
     let rule = crate::check::rule::check_threshold_rule(&none.image, &culled.image, 0.95);
@@ -374,4 +378,67 @@ fn a_jittered_scene_refuses_pof_culling_but_culls_exactly() {
         assert!(!e.to_string().contains("--"), "{e}");
     }
     assert!(s.render(&FrameRequest::new(&cam).cull(Cull::Exact)).is_ok());
+}
+
+#[test]
+fn one_process_frames_default_to_the_march_engine_which_equals_the_reference() {
+    let s = scene(40);
+    let cam = camera(&s, 35.0);
+    for (weights, shade) in [([1.0, 1.0], false), ([1.0, 0.0], true), ([0.5, 2.0], false)] {
+        let req = FrameRequest::new(&cam).weights(&weights).shade(shade);
+        assert_eq!(s.engine(&req).unwrap(), Engine::March);
+        let march = s.render(&req).unwrap();
+        let whole = s.render_reference(&req).unwrap();
+        let bits = |f: &Frame| -> Vec<[u32; 4]> {
+            f.image
+                .pixels()
+                .iter()
+                .map(|p| p.map(f32::to_bits))
+                .collect()
+        };
+        assert_eq!(bits(&march), bits(&whole), "{weights:?} shade {shade}");
+        assert_eq!((march.stats.engine, whole.stats.engine), ("march", "whole"));
+        assert_eq!(march.stats.rays, whole.stats.rays);
+        assert!(march.stats.samples <= whole.stats.samples);
+        assert!(march.stats.samples_per_ray <= whole.stats.samples_per_ray);
+        assert_eq!(march.stats.cull, Some(CullMode::None));
+        let bricks = s.render(&req.clone().engine(Engine::Bricks)).unwrap();
+        assert_eq!(bricks.stats.engine, "bricks");
+        assert_eq!(march.stats.bricks.empty, bricks.stats.bricks.empty);
+        // Samples per ray count the rays that met the volume, whatever the engine.
+        let per_ray = bricks.stats.samples as f64 / whole.stats.rays as f64;
+        assert_eq!(bricks.stats.samples_per_ray, per_ray);
+    }
+    // Skin only: empty space to skip.
+    let req = FrameRequest::new(&cam).weights(&[1.0, 0.0]);
+    let march = s.render(&req).unwrap();
+    assert!(march.stats.skipped_samples > 0, "{:?}", march.stats);
+}
+
+#[test]
+fn the_march_engine_refuses_culling_ranks_and_communicators() {
+    let s = scene(16);
+    let cam = camera(&s, 0.0);
+    let march = FrameRequest::new(&cam).engine(Engine::March);
+    for (req, what) in [
+        (march.clone().cull(Cull::Exact), "cull mode exact"),
+        (march.clone().ranks(2), "2 ranks"),
+    ] {
+        let e = s.render(&req).unwrap_err();
+        assert!(matches!(e, Error::Engine { .. }), "{e}");
+        assert!(e.to_string().contains(what), "{e}");
+        assert!(!e.to_string().contains("--"), "{e}");
+    }
+    // Without a choice, culling and ranks take the brick engine.
+    let culled = FrameRequest::new(&cam).cull(Cull::Exact);
+    assert_eq!(s.engine(&culled).unwrap(), Engine::Bricks);
+    assert_eq!(
+        s.engine(&FrameRequest::new(&cam).ranks(3)).unwrap(),
+        Engine::Bricks
+    );
+    let comm = crate::comm::LocalCommunicator::run(1, |c| s.render_on(c, &march).map(|_| ()));
+    assert!(matches!(comm[0], Err(Error::Engine { .. })));
+    assert_eq!(Engine::March.name(), "march");
+    assert_eq!("Bricks".parse::<Engine>(), Ok(Engine::Bricks));
+    assert!("vtk".parse::<Engine>().is_err());
 }

@@ -1,0 +1,257 @@
+//! The march engine against the reference: the same image bit for bit, and fewer samples.
+
+use super::*;
+use crate::brick::BrickGrid;
+use crate::volume::phantom::Phantom;
+use crate::volume::{Volume, VoxelData, Voxels};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+/// Renders `vol` with the reference and the march engine; asserts the images are equal
+/// bit for bit and returns the reference's and the march's figures.
+fn compare(
+    vol: &Volume,
+    tf: &TransferFunction,
+    weights: &[f32],
+    settings: RenderSettings,
+    cam: &Camera,
+) -> (RayStats, MarchStats) {
+    let grid = BrickGrid::from_volume(vol, 16).unwrap();
+    let s = SampledTf::new(tf, grid.value_range());
+    let cls = s.classify(weights, settings.step);
+    let caster = RayCaster::new(vol, &cls, settings);
+    let (want, ref_st) = caster.render(cam);
+    let occ = Occupancy::new(&CellRanges::new(vol), &cls);
+    let (got, st) = caster.render_march(cam, &occ);
+    for (i, (g, w)) in got.pixels().iter().zip(want.pixels()).enumerate() {
+        assert_eq!(
+            g.map(f32::to_bits),
+            w.map(f32::to_bits),
+            "pixel {i} ({}, {}): march {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
+            i as u32 % cam.width,
+            i as u32 / cam.width,
+            cam.projection
+        );
+    }
+    assert_eq!(st.rays.rays, ref_st.rays, "rays that met the volume");
+    (ref_st, st)
+}
+
+#[test]
+fn march_equals_reference_on_the_phantoms() {
+    let head = Phantom::SheppLogan.generate(48);
+    let ml = Phantom::MarschnerLobb.generate(33);
+    let cases: [(&Volume, TransferFunction, Vec<Vec<f32>>); 2] = [
+        (
+            &head,
+            families::for_phantom(Phantom::SheppLogan),
+            // Both bases; skin only (most of the volume empty); brain only; heavy.
+            vec![
+                vec![1.0, 1.0],
+                vec![1.0, 0.0],
+                vec![0.0, 1.0],
+                vec![6.0, 3.0],
+            ],
+        ),
+        (
+            &ml,
+            families::for_phantom(Phantom::MarschnerLobb),
+            vec![vec![1.0; 1], vec![0.3; 1]],
+        ),
+    ];
+    let views = [
+        (0.0, 0.0),
+        (90.0, 0.0),
+        (0.0, 90.0),
+        (30.0, 20.0),
+        (-127.0, -41.0),
+    ];
+    for (vol, tf, weight_sets) in &cases {
+        let bases = tf.bases.len();
+        for weights in weight_sets {
+            let weights: Vec<f32> = weights.iter().copied().cycle().take(bases).collect();
+            for (i, &(az, el)) in views.iter().enumerate() {
+                for projection in [Projection::Orthographic, Projection::Perspective] {
+                    // Shading and termination vary with the view, so that every
+                    // combination appears without multiplying the cases.
+                    let settings = RenderSettings {
+                        step: [1.0, 0.5, 0.7][i % 3],
+                        ert: [0.99, 2.0, 0.6]
+                            [(i + usize::from(projection == Projection::Perspective)) % 3],
+                        shade: (i + weights.len()).is_multiple_of(2),
+                        // Jittered ray starts in some cases: the march engine must start
+                        // each ray where the reference does.
+                        jitter: (i % 4 == 3).then_some(u32::try_from(i).unwrap()),
+                    };
+                    let cam = Camera::orbit(vol, az, el, 40, 36, projection);
+                    compare(vol, tf, &weights, settings, &cam);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn march_shaded_and_unshaded_on_every_axis_view() {
+    let head = Phantom::SheppLogan.generate(40);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    for (az, el) in [
+        (0.0, 0.0),
+        (180.0, 0.0),
+        (90.0, 0.0),
+        (270.0, 0.0),
+        (0.0, 90.0),
+        (0.0, -90.0),
+    ] {
+        for shade in [false, true] {
+            for ert in [0.95, 1.0] {
+                let settings = RenderSettings {
+                    step: 1.0,
+                    ert,
+                    shade,
+                    jitter: None,
+                };
+                let cam = Camera::orbit(&head, az, el, 32, 32, Projection::Orthographic);
+                compare(&head, &tf, &[1.0, 1.0], settings, &cam);
+            }
+        }
+    }
+}
+
+/// A volume of zeros with a few random boxes of random values, of any voxel type.
+fn sparse_volume(rng: &mut StdRng, dtype: usize) -> Volume {
+    let dims: [usize; 3] = std::array::from_fn(|_| {
+        if rng.gen_bool(0.1) {
+            1
+        } else {
+            rng.gen_range(2..=45)
+        }
+    });
+    let spacing: [f32; 3] = std::array::from_fn(|_| rng.gen_range(0.4..2.0));
+    let n: usize = dims.iter().product();
+    let mut v = vec![0f32; n];
+    for _ in 0..rng.gen_range(1..4) {
+        let lo: [usize; 3] = std::array::from_fn(|a| rng.gen_range(0..dims[a]));
+        let hi: [usize; 3] = std::array::from_fn(|a| rng.gen_range(lo[a]..dims[a]).min(lo[a] + 6));
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    v[(z * dims[1] + y) * dims[0] + x] = rng.gen_range(0.0..250.0);
+                }
+            }
+        }
+    }
+    let data = match dtype {
+        0 => VoxelData::U8(Voxels::owned(v.iter().map(|x| *x as u8).collect())),
+        1 => VoxelData::U16(Voxels::owned(
+            v.iter().map(|x| (*x * 100.0) as u16).collect(),
+        )),
+        2 => VoxelData::I16(Voxels::owned(
+            v.iter().map(|x| (*x * 50.0) as i16 - 3000).collect(),
+        )),
+        _ => VoxelData::F32(Voxels::owned(v.iter().map(|x| x * 0.37 - 2.0).collect())),
+    };
+    Volume::new(dims, spacing, data, "sparse").unwrap()
+}
+
+#[test]
+fn march_equals_reference_on_sparse_random_volumes() {
+    let mut rng = StdRng::seed_from_u64(16);
+    for case in 0..120 {
+        let vol = sparse_volume(&mut rng, case % 4);
+        let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+        let r = grid.value_range();
+        // Opacity only on a random band of values above the background.
+        let a = rng.gen_range(0.05..0.6);
+        let lo = r.min + (r.max - r.min) * rng.gen_range(0.01..0.5);
+        let hi = lo + (r.max - lo) * rng.gen_range(0.1..1.0);
+        let tf = TransferFunction::from_json(
+            &format!(
+                r#"{{"bases":[{{"name":"b","opacity":[[{},0],[{lo},0],[{hi},{a}],[{},{a}]]}}],"color":[[{},1,0.5,0.2],[{},0.2,0.5,1]]}}"#,
+                r.min, r.max, r.min, r.max
+            ),
+            "band",
+        )
+        .unwrap();
+        let settings = RenderSettings {
+            step: rng.gen_range(0.3..1.5),
+            ert: if rng.gen_bool(0.5) {
+                rng.gen_range(0.3..0.99)
+            } else {
+                1.0
+            },
+            shade: rng.gen_bool(0.3),
+            jitter: rng.gen_bool(0.3).then(|| rng.gen()),
+        };
+        let projection = if rng.gen_bool(0.5) {
+            Projection::Orthographic
+        } else {
+            Projection::Perspective
+        };
+        let cam = Camera::orbit(
+            &vol,
+            rng.gen_range(-180.0..180.0),
+            rng.gen_range(-89.0..89.0),
+            24,
+            20,
+            projection,
+        );
+        compare(&vol, &tf, &[1.0], settings, &cam);
+    }
+}
+
+#[test]
+fn march_skips_empty_space_and_takes_fewer_samples() {
+    // Skin only: the air around the head and the inside of the skull are empty.
+    let head = Phantom::SheppLogan.generate(64);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let cam = Camera::orbit(&head, 30.0, 20.0, 64, 64, Projection::Perspective);
+    let settings = RenderSettings {
+        ert: 2.0,
+        ..RenderSettings::default()
+    };
+    let (reference, march) = compare(&head, &tf, &[1.0, 0.0], settings, &cam);
+    assert!(march.skipped_samples > 0, "{march:?}");
+    assert!(
+        march.rays.samples < reference.samples,
+        "{march:?} vs {reference:?}"
+    );
+    // Without termination every lattice sample is either taken or skipped.
+    assert_eq!(
+        march.rays.samples + march.skipped_samples,
+        reference.samples
+    );
+}
+
+#[test]
+fn occupancy_is_empty_for_a_transparent_tf_and_full_for_an_opaque_one() {
+    let head = Phantom::SheppLogan.generate(24);
+    let ranges = CellRanges::new(&head);
+    assert_eq!(ranges.cells(), [6, 6, 6]);
+    let grid = BrickGrid::from_volume(&head, 8).unwrap();
+    for (alpha, occupied) in [(0.0, 0), (0.3, 216)] {
+        let tf = TransferFunction::from_json(
+            &format!(r#"{{"bases":[{{"name":"c","opacity":[[0,{alpha}],[255,{alpha}]]}}],"color":[[0,1,1,1]]}}"#),
+            "c",
+        )
+        .unwrap();
+        let cls = SampledTf::new(&tf, grid.value_range()).classify(&[1.0], 1.0);
+        assert_eq!(
+            Occupancy::new(&ranges, &cls).occupied_cells(),
+            (occupied, 216)
+        );
+    }
+}
+
+#[test]
+fn cell_ranges_cover_the_one_voxel_apron() {
+    // One nonzero voxel at x = 8 lies in cells 1 (voxels 4..=8) and 2 (voxels 8..=12).
+    let dims = [17, 3, 2];
+    let mut v = vec![0u8; 17 * 3 * 2];
+    v[8] = 200;
+    let vol = Volume::new(dims, [1.0; 3], VoxelData::U8(Voxels::owned(v)), "dot").unwrap();
+    let r = CellRanges::new(&vol);
+    assert_eq!(r.cells(), [4, 1, 1]);
+    let maxes: Vec<f32> = (0..4).map(|x| r.range([x, 0, 0])[1]).collect();
+    assert_eq!(maxes, [0.0, 200.0, 200.0, 0.0]);
+}

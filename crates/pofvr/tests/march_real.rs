@@ -1,0 +1,79 @@
+//! The march engine on the catalogue's real volumes: the image of the whole-volume
+//! reference bit for bit, in orthographic and perspective views, shaded and unshaded, with
+//! fewer samples per ray. Ignored unless run with `--ignored` (they need `../shared/data`).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use pofvr::render::{Camera, Projection, TransferFunction};
+use pofvr::{Engine, FrameRequest, Scene, Volume};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Every catalogued volume with its family from `tfs/`.
+const CASES: [(&str, &str); 7] = [
+    ("neghip/neghip.nhdr", "sim-isobands.json"),
+    ("ironprot/ironprot.nhdr", "sim-isobands.json"),
+    ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
+    (
+        "headsq_quarter/headsq_quarter.nhdr",
+        "ct-head-skin-bone.json",
+    ),
+    (
+        "lidc2_ct_chest/lidc2_ct_chest.nhdr",
+        "ct-chest-skin-bone.json",
+    ),
+    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain.json"),
+    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain-opaque.json"),
+];
+
+#[test]
+#[ignore = "needs ../shared/data (real volumes)"]
+fn march_equals_the_reference_on_every_real_volume() {
+    let data = common::shared_data();
+    for (vol, tf) in CASES {
+        let volume = Volume::open(&data.join(vol), None).unwrap();
+        let family = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
+        let bases = family.bases.len();
+        let scene = Scene::builder(volume, family).build().unwrap();
+        // The family's own weights, and the first basis alone (more of the volume empty).
+        let alone: Vec<f32> = (0..bases).map(|i| f32::from(i == 0)).collect();
+        let weight_sets = [scene.default_weights().to_vec(), alone];
+        for weights in &weight_sets {
+            for (az, el, projection, shade) in [
+                (0.0, 0.0, Projection::Orthographic, false),
+                (30.0, 20.0, Projection::Perspective, true),
+                (0.0, 90.0, Projection::Orthographic, true),
+                (-117.0, -33.0, Projection::Perspective, false),
+            ] {
+                let cam = Camera::orbit(scene.volume(), az, el, 96, 96, projection);
+                let req = FrameRequest::new(&cam)
+                    .weights(weights)
+                    .shade(shade)
+                    .engine(Engine::March);
+                let march = scene.render(&req).unwrap();
+                let whole = scene.render_reference(&req).unwrap();
+                let what =
+                    format!("{vol} {tf} {weights:?} view {az},{el} {projection:?} shade {shade}");
+                for (i, (m, w)) in march
+                    .image
+                    .pixels()
+                    .iter()
+                    .zip(whole.image.pixels())
+                    .enumerate()
+                {
+                    assert_eq!(
+                        m.map(f32::to_bits),
+                        w.map(f32::to_bits),
+                        "{what}: pixel {i}"
+                    );
+                }
+                assert_eq!(march.stats.rays, whole.stats.rays, "{what}");
+                assert!(march.stats.samples <= whole.stats.samples, "{what}");
+            }
+        }
+    }
+}
