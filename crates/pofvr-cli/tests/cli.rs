@@ -566,7 +566,7 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("f.json")).unwrap()).unwrap();
     assert_eq!(r["image"], serde_json::json!([40, 32]));
-    assert_eq!(r["engines"], serde_json::json!(["whole", "bricks"]));
+    assert_eq!(r["engines"], serde_json::json!(["whole", "bricks", "march"]));
     let cases = r["cases"].as_array().unwrap();
     // Two volumes, one view, unshaded and shaded.
     assert_eq!(cases.len(), 4);
@@ -591,7 +591,7 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
         let min = c["min_samples_per_ray"].as_f64().unwrap();
         assert!(min > 0.0);
         let engines = c["engines"].as_array().unwrap();
-        assert_eq!(engines.len(), 2);
+        assert_eq!(engines.len(), 3);
         for e in engines {
             for k in [
                 "engine",

@@ -11,7 +11,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::render::{Camera, Image, Projection};
-use crate::{Frame, FrameRequest, Scene};
+use crate::{Engine, Frame, FrameRequest, Scene};
 
 pub use min_samples::minimum_samples;
 pub use vtk_peer::{PeerVolume, VtkFrame, VtkPeer};
@@ -24,13 +24,16 @@ use super::{ExperimentError, Progress};
 pub enum FrameEngine {
     /// The whole volume in one pass, no bricks ([`Scene::render_reference`]).
     Whole,
-    /// Brick by brick, one rank, no culling ([`Scene::render`]).
+    /// Brick by brick, one rank, no culling ([`Engine::Bricks`]).
     Bricks,
+    /// Whole rays with empty-space skipping ([`Engine::March`]).
+    March,
 }
 
 /// The engines measured, in report order; the first is the reference the others' images
 /// are compared with.
-pub const FRAME_ENGINES: [FrameEngine; 2] = [FrameEngine::Whole, FrameEngine::Bricks];
+pub const FRAME_ENGINES: [FrameEngine; 3] =
+    [FrameEngine::Whole, FrameEngine::Bricks, FrameEngine::March];
 
 impl FrameEngine {
     /// The name the report uses.
@@ -39,13 +42,15 @@ impl FrameEngine {
         match self {
             FrameEngine::Whole => "whole",
             FrameEngine::Bricks => "bricks",
+            FrameEngine::March => "march",
         }
     }
 
     fn render(self, scene: &Scene, req: &FrameRequest<'_>) -> crate::Result<Frame> {
         match self {
             FrameEngine::Whole => scene.render_reference(req),
-            FrameEngine::Bricks => scene.render(req),
+            FrameEngine::Bricks => scene.render(&req.clone().engine(Engine::Bricks)),
+            FrameEngine::March => scene.render(&req.clone().engine(Engine::March)),
         }
     }
 }
