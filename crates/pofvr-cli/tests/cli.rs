@@ -566,7 +566,10 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("f.json")).unwrap()).unwrap();
     assert_eq!(r["image"], serde_json::json!([40, 32]));
-    assert_eq!(r["engines"], serde_json::json!(["whole", "bricks", "march"]));
+    assert_eq!(
+        r["engines"],
+        serde_json::json!(["whole", "bricks", "march"])
+    );
     let cases = r["cases"].as_array().unwrap();
     // Two volumes, one view, unshaded and shaded.
     assert_eq!(cases.len(), 4);
