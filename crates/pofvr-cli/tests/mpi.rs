@@ -311,6 +311,9 @@ fn an_orbit_sequence_under_mpi_has_one_stats_entry_per_frame() {
             "64x64",
             "--view",
             "110,20",
+            // The brick engine, as every MPI frame uses.
+            "--engine",
+            "bricks",
             "--out",
             "one.png",
             "--out-raw",
