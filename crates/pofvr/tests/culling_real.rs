@@ -4,8 +4,6 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-
 use pofvr::brick::BrickGrid;
 use pofvr::cull::range_bound::RangeBound;
 use pofvr::cull::{CoreLevels, CullMode, OpacityBound};
@@ -13,10 +11,6 @@ use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
 use pofvr::pof::{PofSettings, PofTable};
 use pofvr::render::{Camera, Image, Projection, RenderSettings, TransferFunction};
 use pofvr::volume::Volume;
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
 
 /// The threshold rule, asserted.
 pub fn assert_conservative(reference: &Image, culled: &Image, threshold: f32, what: &str) {
@@ -29,29 +23,13 @@ fn pixels_breaking_the_rule(reference: &Image, culled: &Image, threshold: f32) -
     pofvr::check::check_threshold_rule(reference, culled, threshold).violations
 }
 
-const CASES: [(&str, &str); 7] = [
-    ("neghip/neghip.nhdr", "sim-isobands.json"),
-    ("ironprot/ironprot.nhdr", "sim-isobands.json"),
-    ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
-    (
-        "headsq_quarter/headsq_quarter.nhdr",
-        "ct-head-skin-bone.json",
-    ),
-    (
-        "lidc2_ct_chest/lidc2_ct_chest.nhdr",
-        "ct-chest-skin-bone.json",
-    ),
-    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain.json"),
-    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain-opaque.json"),
-];
-
 #[test]
 #[ignore = "needs ../shared/data (real volumes)"]
 fn culling_is_conservative_on_every_real_volume() {
     let data = common::shared_data();
-    for (vol, tf) in CASES {
+    for (vol, tf) in common::CATALOGUE {
         let volume = Volume::open(&data.join(vol), None).unwrap();
-        let tf = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
+        let tf = TransferFunction::from_file(&common::family_file(tf)).unwrap();
         let mut job = RenderJob::new(volume, tf, 16, RenderSettings::default()).unwrap();
         for weights in [[1.0, 1.0], [2.5, 0.5]] {
             job.tf.set_weights(weights.to_vec()).unwrap();
@@ -102,9 +80,9 @@ fn culling_is_conservative_on_every_real_volume() {
 #[ignore = "needs ../shared/data (real volumes)"]
 fn pof_culling_is_conservative_on_every_real_volume() {
     let data = common::shared_data();
-    for (vol, tf) in CASES {
+    for (vol, tf) in common::CATALOGUE {
         let volume = Volume::open(&data.join(vol), None).unwrap();
-        let tf = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
+        let tf = TransferFunction::from_file(&common::family_file(tf)).unwrap();
         let mut job = RenderJob::new(volume, tf, 16, RenderSettings::default()).unwrap();
         let big = job.grid.len() > 2000;
         let settings = PofSettings {

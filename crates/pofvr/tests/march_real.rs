@@ -4,39 +4,16 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-
 use pofvr::render::{Camera, Projection, TransferFunction};
 use pofvr::{Engine, FrameRequest, Scene, Volume};
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// Every catalogued volume with its family from `tfs/`.
-const CASES: [(&str, &str); 7] = [
-    ("neghip/neghip.nhdr", "sim-isobands.json"),
-    ("ironprot/ironprot.nhdr", "sim-isobands.json"),
-    ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
-    (
-        "headsq_quarter/headsq_quarter.nhdr",
-        "ct-head-skin-bone.json",
-    ),
-    (
-        "lidc2_ct_chest/lidc2_ct_chest.nhdr",
-        "ct-chest-skin-bone.json",
-    ),
-    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain.json"),
-    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain-opaque.json"),
-];
 
 #[test]
 #[ignore = "needs ../shared/data (real volumes)"]
 fn march_equals_the_reference_on_every_real_volume() {
     let data = common::shared_data();
-    for (vol, tf) in CASES {
+    for (vol, tf) in common::CATALOGUE {
         let volume = Volume::open(&data.join(vol), None).unwrap();
-        let family = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
+        let family = TransferFunction::from_file(&common::family_file(tf)).unwrap();
         let bases = family.bases.len();
         let scene = Scene::builder(volume, family).build().unwrap();
         // The family's own weights, and the first basis alone (more of the volume empty).

@@ -5,33 +5,11 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-
 use pofvr::check::check_threshold_rule;
 use pofvr::cull::CullMode;
 use pofvr::frame::{render_frame, FrameOptions, RenderJob};
 use pofvr::render::{Camera, Image, Projection, RayCaster, RenderSettings, TransferFunction};
 use pofvr::volume::Volume;
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-const CASES: [(&str, &str); 7] = [
-    ("neghip/neghip.nhdr", "sim-isobands.json"),
-    ("ironprot/ironprot.nhdr", "sim-isobands.json"),
-    ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
-    (
-        "headsq_quarter/headsq_quarter.nhdr",
-        "ct-head-skin-bone.json",
-    ),
-    (
-        "lidc2_ct_chest/lidc2_ct_chest.nhdr",
-        "ct-chest-skin-bone.json",
-    ),
-    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain.json"),
-    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain-opaque.json"),
-];
 
 fn bits(i: &Image) -> Vec<u32> {
     i.pixels().iter().flatten().map(|v| v.to_bits()).collect()
@@ -41,9 +19,9 @@ fn bits(i: &Image) -> Vec<u32> {
 #[ignore = "needs ../shared/data (real volumes)"]
 fn shaded_frames_equal_the_scalar_reference_on_every_real_volume() {
     let data = common::shared_data();
-    for (vol, tf) in CASES {
+    for (vol, tf) in common::CATALOGUE {
         let volume = Volume::open(&data.join(vol), None).unwrap();
-        let tf = TransferFunction::from_file(&repo().join("tfs").join(tf)).unwrap();
+        let tf = TransferFunction::from_file(&common::family_file(tf)).unwrap();
         let settings = RenderSettings {
             shade: true,
             ..RenderSettings::default()

@@ -90,16 +90,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
     let mut volumes = Vec::new();
     for (i, spec) in specs.iter().enumerate() {
         let sp = ui.spinner(&format!("opening and bricking {spec}"));
-        let vol_args = crate::args::VolumeArgs {
-            volume: spec.clone(),
-            dims: None,
-            dtype: None,
-            endian: "little".into(),
-            spacing: None,
-            header_bytes: 0,
-            brick: 16,
-        };
-        let vol = resolve::volume(&vol_args)?;
+        let vol = self_describing_volume(spec)?;
         let tf_args = crate::args::TfArgs {
             tf: a.tf.get(i).cloned(),
             weights: None,
@@ -206,11 +197,10 @@ fn read_targets(path: &std::path::Path) -> Result<Vec<TargetSpec>> {
     })
 }
 
-pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
-    let spec = a.volume.as_deref().unwrap_or("phantom:head:256");
-    let specs = a.targets.as_deref().map(read_targets).transpose()?;
-    let sp = ui.spinner("opening and bricking the volume");
-    let vol_args = crate::args::VolumeArgs {
+/// A volume the benches name by its spec alone (a header file or a phantom: no raw layout
+/// flags), with the default 16³ bricks.
+fn self_describing_volume(spec: &str) -> Result<pofvr::Volume> {
+    resolve::volume(&crate::args::VolumeArgs {
         volume: spec.to_string(),
         dims: None,
         dtype: None,
@@ -218,8 +208,14 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         spacing: None,
         header_bytes: 0,
         brick: 16,
-    };
-    let vol = resolve::volume(&vol_args)?;
+    })
+}
+
+pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
+    let spec = a.volume.as_deref().unwrap_or("phantom:head:256");
+    let specs = a.targets.as_deref().map(read_targets).transpose()?;
+    let sp = ui.spinner("opening and bricking the volume");
+    let vol = self_describing_volume(spec)?;
     let tf_args = crate::args::TfArgs {
         tf: a.tf.clone(),
         weights: None,

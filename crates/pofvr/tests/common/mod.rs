@@ -3,6 +3,9 @@
 //! Those tests are `#[ignore = "needs ../shared/data (real volumes)"]`: a plain `cargo test`
 //! counts them as ignored, and `cargo test -- --ignored` runs them. Run that way without the
 //! data, they fail with the reason instead of passing without having checked anything.
+//!
+//! Each test crate that includes this module uses part of it.
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 
@@ -21,4 +24,28 @@ pub(crate) fn shared_data() -> PathBuf {
         dir.display()
     );
     dir
+}
+
+/// Every catalogued volume (its path under [`shared_data`]) with its family in `tfs/`.
+pub(crate) const CATALOGUE: [(&str, &str); 7] = [
+    ("neghip/neghip.nhdr", "sim-isobands.json"),
+    ("ironprot/ironprot.nhdr", "sim-isobands.json"),
+    ("hydrogen/hydrogen.nhdr", "sim-hydrogen.json"),
+    (
+        "headsq_quarter/headsq_quarter.nhdr",
+        "ct-head-skin-bone.json",
+    ),
+    (
+        "lidc2_ct_chest/lidc2_ct_chest.nhdr",
+        "ct-chest-skin-bone.json",
+    ),
+    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain.json"),
+    ("ch2better_mri/ch2better_mri.nhdr", "mri-brain-opaque.json"),
+];
+
+/// A family file of the repository's `tfs/`.
+pub(crate) fn family_file(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tfs")
+        .join(name)
 }
