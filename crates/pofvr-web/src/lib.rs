@@ -4,16 +4,18 @@
 //!
 //! [`Viewer`] holds one [`pofvr::Scene`] (the opened volume, its bricks, the
 //! transfer-function family and optional POFs), shared by `Arc` and rendered per request
-//! with that request's weights, shading and cull mode; the page's transfer-function panel
-//! swaps it for one with another family ([`tf_api`]), and answers HTTP through [`router`];
-//! [`serve`] binds it to a socket. The page is one HTML file with plain JS and CSS, compiled into the binary.
+//! with that request's weights, shading and cull mode, and answers HTTP through [`router`];
+//! [`serve`] binds it to a socket. The page is one HTML file with plain JS and CSS, compiled
+//! into the binary. Its transfer-function panel (`static/tf-editor.js`) edits the family:
+//! [`tf_api`] swaps the scene for one with the posted family without holding up frames in
+//! flight, and [`histogram`] counts the values the panel draws the curves over.
 //!
 //! ## HTTP interface
 //!
 //! | route | answer |
 //! |---|---|
-//! | `GET /` , `/viewer.js`, `/viewer.css` | the page |
-//! | `GET /api/info` | JSON: volume, basis names and default weights, brick count, cull modes, limits |
+//! | `GET /` , `/viewer.js`, `/tf-editor.js`, `/viewer.css` | the page |
+//! | `GET /api/info` | JSON: volume, basis names and the family's weights, brick count, cull modes, `pofs`, `family_version`, limits |
 //! | `GET /api/frame?…` | `image/png`; the frame's figures as JSON in the `X-Pofvr-Stats` header |
 //! | `GET /api/status` | JSON: frames rendered, requests superseded, clients, renders running |
 //! | `GET /api/histogram` | JSON: the volume's voxel counts in 256 bins over `value_range` (`lo`, `hi`, `counts`, `total`) |
@@ -27,10 +29,10 @@
 //! (1 fits the volume, in [0.1, 20]), `w`, `h` (1..=2048), `proj` (`ortho` | `persp`),
 //! `weights` (comma-separated, one per basis, each in [0, 100]), `threshold` (in
 //! [0.01, 1]), `cull` (`none` | `pof` | `pof-set` | `exact`), `shade` and `overlay` (`0` |
-//! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). While the POFs are
-//! `stale` the POF modes render as `exact` ([`tf_api::cull_for`]); the stats header says
-//! so (`cull` as rendered, `cull_requested`, `pofs`, and `family_version`). An invalid, unknown or
-//! repeated parameter is answered `400` with a plain-text message. Unless
+//! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). An invalid, unknown or
+//! repeated parameter is answered `400` with a plain-text message. While the POFs are
+//! `stale` the POF modes render as `exact` ([`tf_api::cull_for`]), and the stats header
+//! says so: `cull` as rendered, `cull_requested`, `pofs`, and `family_version`. Unless
 //! [`ViewerOptions::loopback_hosts_only`] is off, a `Host` other than a loopback name gets
 //! `403`.
 //!

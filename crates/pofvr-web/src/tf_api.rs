@@ -238,7 +238,7 @@ pub(crate) fn routes() -> Router<Arc<Viewer>> {
 
 /// A POST must say its body is JSON: a page of another site can only send that with a
 /// CORS preflight, which this server does not grant, so it cannot change the family.
-fn json_post(headers: &HeaderMap) -> Result<(), Response> {
+fn refuse_non_json(headers: &HeaderMap) -> Option<Response> {
     let is_json = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
@@ -247,14 +247,12 @@ fn json_post(headers: &HeaderMap) -> Result<(), Response> {
                 .next()
                 .is_some_and(|t| t.trim().eq_ignore_ascii_case("application/json"))
         });
-    if is_json {
-        Ok(())
-    } else {
-        Err(text(
+    (!is_json).then(|| {
+        text(
             StatusCode::UNSUPPORTED_MEDIA_TYPE,
             "POST bodies must be sent as Content-Type: application/json",
-        ))
-    }
+        )
+    })
 }
 
 async fn histogram(State(v): State<Arc<Viewer>>) -> Response {
@@ -284,7 +282,7 @@ struct Posted {
 }
 
 async fn post_family(State(v): State<Arc<Viewer>>, headers: HeaderMap, body: Bytes) -> Response {
-    if let Err(r) = json_post(&headers) {
+    if let Some(r) = refuse_non_json(&headers) {
         return r;
     }
     let Ok(body) = std::str::from_utf8(&body) else {
@@ -350,7 +348,7 @@ async fn pofs(State(v): State<Arc<Viewer>>) -> Response {
 /// Starts building POFs for the current family on a thread of its own (frames keep
 /// rendering meanwhile) and answers `202` at once; `409` while a build runs.
 async fn rebuild(State(v): State<Arc<Viewer>>, headers: HeaderMap) -> Response {
-    if let Err(r) = json_post(&headers) {
+    if let Some(r) = refuse_non_json(&headers) {
         return r;
     }
     let b = &v.slot.build;
