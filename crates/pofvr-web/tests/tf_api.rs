@@ -341,3 +341,34 @@ async fn the_camera_route_answers_the_camera_of_the_same_frame() {
     assert_eq!(bad.status, StatusCode::BAD_REQUEST);
     assert!(bad.text().contains("el: 100"), "{}", bad.text());
 }
+
+#[tokio::test]
+async fn a_swap_waits_for_no_frame_and_a_frame_keeps_the_family_it_started_with() {
+    let v = viewer_of(scene(32));
+    let hold = v.hold_renders().await;
+    let waiting = {
+        let v = Arc::clone(&v);
+        tokio::spawn(async move { frame(&v, "cull=none").await })
+    };
+    // The frame has taken its scene and its ticket, and waits for a render slot.
+    let start = Instant::now();
+    while v.status().requests == 0 {
+        assert!(start.elapsed() < Duration::from_secs(30));
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    let posted = tokio::time::timeout(Duration::from_secs(60), post_tf(&v, &reshaped()))
+        .await
+        .expect("a swap does not wait for the frames in flight");
+    assert_eq!(posted.status, StatusCode::OK, "{}", posted.text());
+    drop(hold);
+    let old = waiting.await.unwrap();
+    assert_eq!(old.stats.as_ref().unwrap()["family_version"], 0);
+    let fresh_old = frame(&viewer_of(scene(32)), "cull=none").await;
+    assert_eq!(
+        old.body, fresh_old.body,
+        "rendered with the family it started with"
+    );
+    let new = frame(&v, "cull=none").await;
+    assert_eq!(new.stats.as_ref().unwrap()["family_version"], 1);
+    assert_ne!(new.body, old.body);
+}
