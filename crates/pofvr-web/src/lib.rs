@@ -5,23 +5,34 @@
 //! [`Viewer`] holds one [`pofvr::Scene`] (the opened volume, its bricks, the
 //! transfer-function family and optional POFs), shared by `Arc` and rendered per request
 //! with that request's weights, shading and cull mode, and answers HTTP through [`router`];
-//! [`serve`] binds it to a socket. The page is one HTML file with plain JS and CSS, compiled into the binary.
+//! [`serve`] binds it to a socket. The page is one HTML file with plain JS and CSS, compiled
+//! into the binary. Its transfer-function panel (`static/tf-editor.js`) edits the family:
+//! [`tf_api`] swaps the scene for one with the posted family without holding up frames in
+//! flight, and [`histogram`] counts the values the panel draws the curves over.
 //!
 //! ## HTTP interface
 //!
 //! | route | answer |
 //! |---|---|
-//! | `GET /` , `/viewer.js`, `/viewer.css` | the page |
-//! | `GET /api/info` | JSON: volume, basis names and default weights, brick count, cull modes, limits |
+//! | `GET /` , `/viewer.js`, `/tf-editor.js`, `/viewer.css` | the page |
+//! | `GET /api/info` | JSON: volume, basis names and the family's weights, brick count, cull modes, `pofs`, `family_version`, limits |
 //! | `GET /api/frame?…` | `image/png`; the frame's figures as JSON in the `X-Pofvr-Stats` header |
 //! | `GET /api/status` | JSON: frames rendered, requests superseded, clients, renders running |
+//! | `GET /api/histogram` | JSON: the volume's voxel counts in 256 bins over `value_range` (`lo`, `hi`, `counts`, `total`) |
+//! | `GET /api/tf` | the family frames render with, as the JSON `--tf` reads |
+//! | `POST /api/tf` | a family JSON (`Content-Type: application/json`, at most 1 MiB), checked as `--tf` checks it: `400` naming the field, the old family kept; otherwise later frames use it and the answer is JSON: `version`, `pofs`, `pof_renders_as`, `bases`, `weights` |
+//! | `GET /api/pofs` | JSON: `state` (`match`, `stale`: built for other bases, `none`), `pof_renders_as`, `version`, `build` progress |
+//! | `POST /api/pofs/rebuild` | `202`: builds POFs for the current family in the background and swaps them in when done; `409` while one runs |
+//! | `GET /api/camera?…` | the camera of `/api/frame` with the same parameters, as the JSON `pofvr render --camera` reads |
 //!
 //! `/api/frame` parameters, all optional: `az`, `el` (degrees; `el` in [-90, 90]), `zoom`
 //! (1 fits the volume, in [0.1, 20]), `w`, `h` (1..=2048), `proj` (`ortho` | `persp`),
 //! `weights` (comma-separated, one per basis, each in [0, 100]), `threshold` (in
 //! [0.01, 1]), `cull` (`none` | `pof` | `pof-set` | `exact`), `shade` and `overlay` (`0` |
 //! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). An invalid, unknown or
-//! repeated parameter is answered `400` with a plain-text message. Unless
+//! repeated parameter is answered `400` with a plain-text message. While the POFs are
+//! `stale` the POF modes render as `exact` ([`tf_api::cull_for`]), and the stats header
+//! says so: `cull` as rendered, `cull_requested`, `pofs`, and `family_version`. Unless
 //! [`ViewerOptions::loopback_hosts_only`] is off, a `Host` other than a loopback name gets
 //! `403`.
 //!
@@ -34,9 +45,12 @@
 
 pub mod encode;
 pub mod frame_adapter;
+pub mod histogram;
 pub mod params;
 mod scheduler;
+pub mod tf_api;
 
+use std::borrow::Cow;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Instant;
@@ -57,7 +71,8 @@ use params::FrameParams;
 pub use scheduler::SchedulerStats;
 use scheduler::{Refusal, Scheduler};
 
-/// Largest request body accepted, in bytes; no route reads a body.
+/// Largest request body accepted, in bytes, except by `POST /api/tf`
+/// ([`tf_api::TF_BODY_BYTES`]).
 pub const MAX_BODY_BYTES: u64 = 16 * 1024;
 /// Longest query string accepted, in bytes.
 pub const MAX_QUERY_BYTES: usize = 4096;
@@ -69,6 +84,7 @@ pub const STATS_HEADER: &str = "x-pofvr-stats";
 const INDEX_HTML: &str = include_str!("../static/index.html");
 const VIEWER_JS: &str = include_str!("../static/viewer.js");
 const VIEWER_CSS: &str = include_str!("../static/viewer.css");
+const TF_EDITOR_JS: &str = include_str!("../static/tf-editor.js");
 
 /// Tunables of a [`Viewer`].
 #[derive(Clone, Debug)]
@@ -103,7 +119,7 @@ impl Default for ViewerOptions {
 
 /// The state behind the server: one scene and the scheduler.
 pub struct Viewer {
-    scene: Arc<Scene>,
+    slot: tf_api::SceneSlot,
     source: String,
     scheduler: Scheduler,
     defaults: FrameParams,
@@ -136,7 +152,7 @@ impl Viewer {
             seq: 0,
         };
         Viewer {
-            scene,
+            slot: tf_api::SceneSlot::new(scene),
             source: source.to_string(),
             scheduler: Scheduler::new(options.render_slots, options.max_clients),
             defaults,
@@ -164,14 +180,31 @@ impl Viewer {
     pub fn cull_modes(&self) -> Vec<CullMode> {
         frame_adapter::CULL_MODES
             .into_iter()
-            .filter(|m| self.scene.pofs().is_some() || !m.needs_pofs())
+            .filter(|m| self.pof_state() != tf_api::PofState::None || !m.needs_pofs())
             .collect()
     }
 
-    /// The scene every frame renders.
+    /// The scene frames render now (the panel may swap it for one with another family).
     #[must_use]
-    pub fn scene(&self) -> &Arc<Scene> {
-        &self.scene
+    pub fn scene(&self) -> Arc<Scene> {
+        self.slot.current().scene
+    }
+
+    /// Whether the current scene's POFs match its family.
+    #[must_use]
+    pub fn pof_state(&self) -> tf_api::PofState {
+        self.slot.pof_state(&self.scene())
+    }
+
+    /// The defaults of a request to `scene`: its family's weights, the rest as at start.
+    fn defaults_for(&self, scene: &Scene) -> Cow<'_, FrameParams> {
+        if scene.default_weights() == self.defaults.look.weights.as_slice() {
+            Cow::Borrowed(&self.defaults)
+        } else {
+            let mut d = self.defaults.clone();
+            d.look.weights = scene.default_weights().to_vec();
+            Cow::Owned(d)
+        }
     }
 
     /// The scheduler's counters.
@@ -181,9 +214,9 @@ impl Viewer {
     }
 
     /// The camera of a request: the orbit camera with the whole volume fitted, zoomed.
-    fn camera(&self, p: &FrameParams) -> Camera {
+    fn camera(&self, scene: &Scene, p: &FrameParams) -> Camera {
         let mut cam = Camera::orbit(
-            self.scene.volume(),
+            scene.volume(),
             p.azimuth,
             p.elevation,
             p.width,
@@ -221,19 +254,25 @@ pub fn router(viewer: Arc<Viewer>) -> Router {
         .route("/api/info", get(info))
         .route("/api/status", get(status))
         .route("/api/frame", get(frame))
+        .route(
+            "/tf-editor.js",
+            get(|| async { page("text/javascript; charset=utf-8", TF_EDITOR_JS) }),
+        )
+        .merge(tf_api::routes())
         .fallback(|| async { (StatusCode::NOT_FOUND, "no such page\n") })
         .layer(middleware::from_fn_with_state(Arc::clone(&viewer), guard))
         .with_state(viewer)
 }
 
-/// Rejects oversized requests and foreign host names before routing, and marks every
+/// Rejects oversized requests (bodies over [`tf_api::body_limit`]) and foreign host names before routing, and marks every
 /// answer as not to be sniffed or framed by another site.
 async fn guard(State(v): State<Arc<Viewer>>, req: Request, next: Next) -> Response {
+    let limit = tf_api::body_limit(req.uri().path());
     let too_long = req
         .headers()
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.parse::<u64>().map_or(true, |n| n > MAX_BODY_BYTES));
+        .is_some_and(|v| v.parse::<u64>().map_or(true, |n| n > limit));
     let chunked = req.headers().contains_key(header::TRANSFER_ENCODING);
     let foreign_host = v.loopback_hosts_only
         && req
@@ -251,7 +290,7 @@ async fn guard(State(v): State<Arc<Viewer>>, req: Request, next: Next) -> Respon
     } else if too_long || chunked {
         (
             StatusCode::PAYLOAD_TOO_LARGE,
-            format!("request bodies are limited to {MAX_BODY_BYTES} bytes\n"),
+            format!("request bodies are limited to {limit} bytes\n"),
         )
             .into_response()
     } else if req.uri().query().is_some_and(|q| q.len() > MAX_QUERY_BYTES) {
@@ -321,6 +360,8 @@ struct Info<'a> {
     cull_modes: Vec<&'static str>,
     cull_modes_available: Vec<&'static str>,
     pofs_loaded: bool,
+    pofs: tf_api::PofState,
+    family_version: u64,
     defaults: Defaults,
     limits: Limits,
 }
@@ -367,7 +408,9 @@ struct Limits {
 }
 
 async fn info(State(v): State<Arc<Viewer>>) -> Response {
-    let scene = &v.scene;
+    let cur = v.slot.current();
+    let scene = &cur.scene;
+    let pofs = v.slot.pof_state(scene);
     let range = scene.grid().value_range();
     let info = Info {
         volume: VolumeInfo {
@@ -381,7 +424,7 @@ async fn info(State(v): State<Arc<Viewer>>) -> Response {
             .family()
             .bases
             .iter()
-            .zip(&v.defaults.look.weights)
+            .zip(scene.default_weights())
             .map(|(b, w)| BasisInfo {
                 name: &b.name,
                 weight: *w,
@@ -394,7 +437,9 @@ async fn info(State(v): State<Arc<Viewer>>) -> Response {
         },
         cull_modes: frame_adapter::CULL_MODES.iter().map(|m| m.name()).collect(),
         cull_modes_available: v.cull_modes().iter().map(|m| m.name()).collect(),
-        pofs_loaded: scene.pofs().is_some(),
+        pofs_loaded: pofs != tf_api::PofState::None,
+        pofs,
+        family_version: cur.version,
         defaults: Defaults {
             az: v.defaults.azimuth,
             el: v.defaults.elevation,
@@ -453,6 +498,9 @@ struct FrameReport<'a> {
     width: u32,
     height: u32,
     cull: CullMode,
+    cull_requested: CullMode,
+    pofs: tf_api::PofState,
+    family_version: u64,
     threshold: f32,
     frame_ms: f64,
     rays: u64,
@@ -474,11 +522,15 @@ async fn frame(
             "the query string is not valid URL encoding",
         );
     };
-    let p = match params::parse(&pairs, &v.defaults) {
+    // One scene from start to end, whatever the panel swaps in meanwhile.
+    let cur = v.slot.current();
+    let mut p = match params::parse(&pairs, &v.defaults_for(&cur.scene)) {
         Ok(p) => p,
         Err(msg) => return text(StatusCode::BAD_REQUEST, msg),
     };
-    if p.options.cull.needs_pofs() && v.scene.pofs().is_none() {
+    let pofs = v.slot.pof_state(&cur.scene);
+    let cull_requested = p.options.cull;
+    if p.options.cull.needs_pofs() && pofs == tf_api::PofState::None {
         return text(
             StatusCode::BAD_REQUEST,
             format!(
@@ -487,6 +539,7 @@ async fn frame(
             ),
         );
     }
+    p.options.cull = tf_api::cull_for(cull_requested, pofs);
     let ticket = match v.scheduler.ticket(&p.client) {
         Ok(t) => t,
         Err(_) => {
@@ -510,12 +563,13 @@ async fn frame(
     let wait_ms = received.elapsed().as_secs_f64() * 1e3;
     let generation = ticket.generation();
     let viewer = Arc::clone(&v);
+    let scene = Arc::clone(&cur.scene);
     // The grant moves into the blocking task, so a client that hangs up does not free the
     // render slot before the render it started is finished.
     let rendered = tokio::task::spawn_blocking(move || {
         let _grant = grant;
         viewer.scheduler.count_render();
-        render_png(&viewer, &p).map(|(png, stats, encode_ms)| (png, stats, encode_ms, p))
+        render_png(&viewer, &scene, &p).map(|(png, stats, encode_ms)| (png, stats, encode_ms, p))
     })
     .await;
     let (png, stats, encode_ms, p) = match rendered {
@@ -537,6 +591,9 @@ async fn frame(
         width: p.width,
         height: p.height,
         cull: p.options.cull,
+        cull_requested,
+        pofs,
+        family_version: cur.version,
         threshold: p.options.cull_threshold,
         frame_ms: stats.frame_ms,
         rays: stats.rays,
@@ -569,13 +626,16 @@ async fn frame(
 }
 
 /// Renders and encodes one frame: PNG bytes, the frame's figures and the encode time.
-fn render_png(v: &Viewer, p: &FrameParams) -> Result<(Vec<u8>, FrameStats, f64), String> {
-    let cam = v.camera(p);
+fn render_png(
+    v: &Viewer,
+    scene: &Scene,
+    p: &FrameParams,
+) -> Result<(Vec<u8>, FrameStats, f64), String> {
+    let cam = v.camera(scene, p);
     let pofvr::Frame { image, stats } =
-        frame_adapter::render(&v.scene, &cam, &p.options, &p.look).map_err(|e| e.to_string())?;
+        frame_adapter::render(scene, &cam, &p.options, &p.look).map_err(|e| e.to_string())?;
     let t = Instant::now();
     let tinted = if p.overlay {
-        let scene = &v.scene;
         encode::footprints(
             scene.grid(),
             scene.volume().spacing(),

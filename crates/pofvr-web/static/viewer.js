@@ -2,7 +2,9 @@
 //
 // Requests are coalesced to one per animation frame; the server drops any request that a
 // newer one from this client overtakes before it starts (answered 204), so nothing queues.
-// Tests and the benchmark watch `window.pofvr` and the `pofvr:frame` event.
+// Tests and the benchmark watch `window.pofvr` and the `pofvr:frame` event; the
+// transfer-function panel (tf-editor.js) starts on `pofvr:ready` and asks for frames
+// through `window.pofvr.view`.
 'use strict';
 
 (() => {
@@ -30,6 +32,7 @@
     lowFrames: 0, // of which low-resolution (while dragging)
     lastLow: null, // the last low-resolution frame shown
     last: null, // {seq, low, stats, shownAt} of the frame on screen
+    blob: null, // its PNG
     errors: 0,
     ready: false,
   };
@@ -44,9 +47,9 @@
     $('status').textContent = msg;
   }
 
-  function frameUrl(s, low) {
+  function frameQuery(s, low) {
     const side = low ? Math.max(32, Math.round(state.size / LOW_RES_DIVISOR)) : state.size;
-    const q = new URLSearchParams({
+    return new URLSearchParams({
       az: s.az.toFixed(3), el: s.el.toFixed(3), zoom: s.zoom.toFixed(4),
       w: side, h: side, proj: s.proj,
       weights: s.weights.map((k) => k.toFixed(4)).join(','),
@@ -54,7 +57,10 @@
       shade: s.shade ? 1 : 0, overlay: s.overlay ? 1 : 0,
       client: clientId, seq: String(s.seq),
     });
-    return '/api/frame?' + q.toString();
+  }
+
+  function frameUrl(s, low) {
+    return '/api/frame?' + frameQuery(s, low).toString();
   }
 
   // Asks for a frame of the current state at the next animation frame; a full-resolution
@@ -103,6 +109,7 @@
       api.shown = mySeq;
       api.frames++;
       api.last = { seq: mySeq, low, stats, shownAt, sentAt };
+      api.blob = blob; // the PNG on screen, as the server sent it
       if (low) {
         api.lowFrames++;
         api.lastLow = api.last;
@@ -131,6 +138,16 @@
     $('fig-ranks').textContent = s.ranks;
     $('fig-visible').textContent = s.bricks.visible;
     $('fig-culled').textContent = s.bricks.culled;
+    // Stale POFs bound other bases: the server culls exactly instead, and says so.
+    const fallback = s.cull_requested && s.cull_requested !== s.cull;
+    const note = $('culling-note');
+    if (fallback) {
+      note.hidden = false;
+      note.textContent = `the POFs are for other bases than the family's: ${s.cull_requested} culls as ${s.cull} (rebuild POFs to cull with them again)`;
+    } else if (note.dataset.fallback === '1') {
+      note.hidden = true;
+    }
+    note.dataset.fallback = fallback ? '1' : '0';
     $('fig-empty').textContent = s.bricks.empty;
     $('fig-total').textContent = s.bricks.total;
     const t = s.times;
@@ -196,9 +213,11 @@
     });
   }
 
-  function bindControls(info) {
+  // One slider per basis; called again when a family with other bases is loaded.
+  function buildWeights(bases, maxWeight) {
     const box = $('weights');
-    info.bases.forEach((b, i) => {
+    box.replaceChildren();
+    bases.forEach((b, i) => {
       const label = document.createElement('label');
       const out = document.createElement('output');
       out.id = `weight-${i}-value`;
@@ -209,7 +228,7 @@
       input.id = `weight-${i}`;
       input.dataset.index = String(i);
       input.min = '0';
-      input.max = String(Math.min(info.limits.max_weight, Math.max(4, 2 * b.weight)));
+      input.max = String(Math.min(maxWeight, Math.max(4, 2 * b.weight)));
       input.step = '0.01';
       input.value = String(b.weight);
       input.setAttribute('aria-label', `weight of ${b.name}`);
@@ -221,7 +240,11 @@
       label.append(document.createTextNode(b.name + ' '), out, input);
       box.append(label);
     });
-    state.weights = info.bases.map((b) => b.weight);
+    state.weights = bases.map((b) => b.weight);
+  }
+
+  function bindControls(info) {
+    buildWeights(info.bases, info.limits.max_weight);
 
     const cull = $('cull');
     for (const m of info.cull_modes) {
@@ -291,7 +314,19 @@
     bindControls(info);
     bindCamera();
     applySize();
+    api.view = {
+      state,
+      requestFrame,
+      settleLater,
+      // The query of the frame on screen, for /api/camera.
+      query: () => frameQuery({ ...state, seq: api.shown }, false),
+      setBases: (bases) => buildWeights(bases, info.limits.max_weight),
+      setCullAvailable: (modes) => {
+        for (const o of $('cull').options) o.disabled = !modes.includes(o.value);
+      },
+    };
     api.ready = true;
+    window.dispatchEvent(new CustomEvent('pofvr:ready', { detail: info }));
     requestFrame(false);
   }
 

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds `pofvr`, installs the browser test's npm packages if missing and runs the
-# real-browser test. Needs Debian's `chromium` and `nodejs`/`npm` (apt-get install -y
+# real-browser tests (viewer.test.mjs, tf-panel.test.mjs). Needs Debian's `chromium` and `nodejs`/`npm` (apt-get install -y
 # chromium nodejs npm). Screenshot and benchmark JSON land in target/browser-artifacts/.
 #
 #   POFVR_PROFILE=debug|release   build profile (default release)
@@ -29,4 +29,4 @@ cd "$here"
 if [ ! -d node_modules/playwright-core ]; then
   npm ci --no-audit --no-fund
 fi
-node --test --test-reporter=spec viewer.test.mjs
+node --test --test-reporter=spec viewer.test.mjs tf-panel.test.mjs

@@ -1,152 +1,19 @@
 // Real-browser test of `pofvr serve`: headless Debian chromium driven by playwright-core.
 //
-// Environment:
-//   POFVR_BIN          the pofvr binary (run.sh sets it)
-//   CHROMIUM           browser binary, default /usr/bin/chromium
-//   POFVR_ARTIFACTS    where the screenshot and the benchmark JSON go,
-//                      default <repo>/target/browser-artifacts
+// Environment: as harness.mjs, and
 //   POFVR_BENCH_VOLUME volume for the slider benchmark, default phantom:head:64
 //   POFVR_BENCH_TF     its family JSON (phantoms have a built-in one)
 //   POFVR_BENCH_ARGS   more `pofvr serve` flags, space-separated (e.g. raw --dims/--dtype)
 //   POFVR_BENCH_REPS   slider moves per cull mode, default 3
-import { test, before, after } from 'node:test';
+import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { spawn } from 'node:child_process';
-import { mkdtempSync, mkdirSync, rmSync, writeFileSync, existsSync } from 'node:fs';
-import { tmpdir } from 'node:os';
+import { writeFileSync } from 'node:fs';
 import path from 'node:path';
-import { fileURLToPath } from 'node:url';
-import { chromium } from 'playwright-core';
+import {
+  artifacts, chromiumPath, FRAME_TIMEOUT, setup, startServer, openViewer, frameNow, nextFullFrame, setSlider,
+} from './harness.mjs';
 
-const here = path.dirname(fileURLToPath(import.meta.url));
-const repo = path.resolve(here, '../../../..');
-const artifacts = process.env.POFVR_ARTIFACTS || path.join(repo, 'target/browser-artifacts');
-const bin = process.env.POFVR_BIN || path.join(process.env.CARGO_TARGET_DIR || path.join(repo, 'target'), 'release/pofvr');
-const chromiumPath = process.env.CHROMIUM || '/usr/bin/chromium';
-const FRAME_TIMEOUT = 60_000;
-
-const servers = [];
-let context;
-let userDataDir;
-
-/** Starts `pofvr serve VOLUME --port 0 ...` and resolves with the address it prints. */
-function startServer(volume, extra = []) {
-  return new Promise((resolve, reject) => {
-    const child = spawn(bin, ['serve', volume, '--port', '0', '--quiet', ...extra], {
-      stdio: ['ignore', 'pipe', 'pipe'],
-    });
-    servers.push(child);
-    let out = '';
-    let err = '';
-    const timer = setTimeout(() => reject(new Error(`no address from ${bin} within 120 s\n${err}`)), 120_000);
-    child.stdout.on('data', (d) => {
-      out += d;
-      const m = out.match(/listening on (http:\/\/\S+)/);
-      if (m) {
-        clearTimeout(timer);
-        resolve(m[1]);
-      }
-    });
-    child.stderr.on('data', (d) => {
-      err += d;
-    });
-    child.on('exit', (code) => {
-      clearTimeout(timer);
-      reject(new Error(`${bin} exited with ${code}\n${err}`));
-    });
-  });
-}
-
-before(async () => {
-  assert.ok(existsSync(bin), `pofvr binary not found at ${bin} (set POFVR_BIN)`);
-  mkdirSync(artifacts, { recursive: true });
-  userDataDir = mkdtempSync(path.join(tmpdir(), 'pofvr-chromium-'));
-  context = await chromium.launchPersistentContext(userDataDir, {
-    executablePath: chromiumPath,
-    headless: true,
-    viewport: { width: 1280, height: 800 },
-    args: [
-      '--no-sandbox',
-      '--disable-gpu',
-      '--disable-background-networking',
-      '--disable-component-update',
-      '--no-first-run',
-      '--disable-sync',
-      // This machine's network is closed; QUIC probes would only log refusals.
-      '--disable-quic',
-    ],
-  });
-});
-
-after(async () => {
-  if (context) await context.close();
-  for (const s of servers) s.kill();
-  if (userDataDir) rmSync(userDataDir, { recursive: true, force: true });
-});
-
-/** Opens the viewer and waits for its first full-resolution frame. */
-async function openViewer(url) {
-  const page = await context.newPage();
-  const problems = [];
-  page.on('pageerror', (e) => problems.push(String(e)));
-  page.on('console', (m) => {
-    if (m.type() === 'error') problems.push(m.text());
-  });
-  await page.goto(url);
-  await page.waitForFunction(() => window.pofvr && window.pofvr.frames >= 1, null, { timeout: FRAME_TIMEOUT });
-  return { page, problems };
-}
-
-/** The frame on screen: its sequence number, figures, size and a hash of its pixels. */
-function frameNow(page) {
-  return page.evaluate(() => {
-    const img = document.getElementById('frame');
-    const c = document.createElement('canvas');
-    c.width = img.naturalWidth;
-    c.height = img.naturalHeight;
-    const g = c.getContext('2d');
-    g.drawImage(img, 0, 0);
-    const px = g.getImageData(0, 0, c.width, c.height).data;
-    let h = 0x811c9dc5;
-    let lit = 0;
-    for (let i = 0; i < px.length; i++) {
-      h = Math.imul(h ^ px[i], 0x01000193) >>> 0;
-      if ((i & 3) === 3 && px[i] > 0) lit++;
-    }
-    return {
-      seq: window.pofvr.shown,
-      low: window.pofvr.last.low,
-      stats: window.pofvr.last.stats,
-      width: img.naturalWidth,
-      height: img.naturalHeight,
-      hash: h,
-      lit,
-      culledText: document.getElementById('fig-culled').textContent,
-    };
-  });
-}
-
-/** Waits for a full-resolution frame newer than every request made so far. */
-async function nextFullFrame(page, after) {
-  await page.waitForFunction(
-    (a) => window.pofvr.shown > a && !window.pofvr.last.low && window.pofvr.shown >= window.pofvr.requested,
-    after,
-    { timeout: FRAME_TIMEOUT },
-  );
-  return frameNow(page);
-}
-
-/** Moves a range input to `value` the way a user's drag ends: one `input` event. */
-async function setSlider(page, id, value) {
-  await page.evaluate(
-    ({ id, value }) => {
-      const el = document.getElementById(id);
-      el.value = String(value);
-      el.dispatchEvent(new Event('input', { bubbles: true }));
-    },
-    { id, value },
-  );
-}
+setup();
 
 test('the viewer shows frames and reacts to sliders, culling and dragging', async () => {
   const url = await startServer('phantom:head:64');

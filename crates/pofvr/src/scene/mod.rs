@@ -32,7 +32,7 @@ use crate::error::{Error, Result};
 use crate::frame::{self, FrameOptions, Look, RenderJob};
 use crate::pof::PofTable;
 use crate::render::{CellRanges, SampledTf, TransferFunction};
-use crate::volume::Volume;
+use crate::volume::{Volume, VoxelData, Voxels};
 
 /// One volume ready to render: see the [module](self) and [`Scene::builder`].
 pub struct Scene {
@@ -75,6 +75,16 @@ fn check_weights(family: &TransferFunction, weights: &[f32]) -> Result<()> {
         return Err(Error::Weight { index, got: *got });
     }
     Ok(())
+}
+
+/// An owned copy of `data`.
+fn copy_voxels(data: &VoxelData) -> VoxelData {
+    match data {
+        VoxelData::U8(x) => VoxelData::U8(Voxels::owned(x.as_slice().to_vec())),
+        VoxelData::U16(x) => VoxelData::U16(Voxels::owned(x.as_slice().to_vec())),
+        VoxelData::I16(x) => VoxelData::I16(Voxels::owned(x.as_slice().to_vec())),
+        VoxelData::F32(x) => VoxelData::F32(Voxels::owned(x.as_slice().to_vec())),
+    }
 }
 
 impl Scene {
@@ -269,6 +279,31 @@ impl Scene {
         let sets = levels.has_sets();
         self.pofs = Some(Pofs::new(Box::new(levels), sets));
         Ok(self)
+    }
+
+    /// A scene of the same volume, bricks and settings rendered with `family`: its POFs
+    /// are kept when `family` has the same bases (names and points; weights and colour are
+    /// free), and dropped otherwise, since they bound the old bases' opacity. The bricks'
+    /// value ranges and the measured cell ranges are reused; the voxels are copied, since
+    /// a scene owns its volume. Private brick copies ([`RenderJob::bricks`]) are not
+    /// carried over: the new scene samples the volume.
+    ///
+    /// # Errors
+    /// [`Error::WeightCount`] or [`Error::Weight`] for bad default weights in `family`.
+    pub fn with_family(&self, family: TransferFunction) -> Result<Scene> {
+        check_weights(&family, &family.weights)?;
+        let same_bases = family.bases.len() == self.job.tf.bases.len()
+            && family.bases_fingerprint() == self.job.tf.bases_fingerprint();
+        let v = &self.job.volume;
+        let data = copy_voxels(v.data());
+        let volume = Volume::new(v.dims(), v.spacing(), data, v.source())?;
+        let job = RenderJob::with_grid(volume, family, self.job.grid.clone(), self.job.settings)?;
+        let scene = Scene {
+            job,
+            pofs: self.pofs.clone().filter(|_| same_bases),
+            cells: self.cells.clone(),
+        };
+        Ok(scene)
     }
 
     /// This scene with the bound of its bricks' value ranges as its POFs

@@ -21,8 +21,12 @@ use crate::pof::{Encoding, PofError, PofMethod, PofSettings, PofTable};
 /// Only a [`crate::Scene`] makes them (they are checked against it there), and a
 /// [`crate::Cull`] takes them from the scene by reference, so a POF cull mode always has
 /// its bounds.
+///
+/// Cloning shares the bounds: [`crate::Scene::with_family`] hands them to a scene whose
+/// bases are the same.
+#[derive(Clone)]
 pub struct Pofs {
-    bound: Box<dyn OpacityBound + Send>,
+    bound: std::sync::Arc<dyn OpacityBound + Send>,
     sets: bool,
 }
 
@@ -37,7 +41,10 @@ impl std::fmt::Debug for Pofs {
 
 impl Pofs {
     pub(crate) fn new(bound: Box<dyn OpacityBound + Send>, sets: bool) -> Self {
-        Pofs { bound, sets }
+        Pofs {
+            bound: bound.into(),
+            sets,
+        }
     }
 
     /// The bounds, as the culler reads them.

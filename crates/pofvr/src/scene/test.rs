@@ -442,3 +442,37 @@ fn the_march_engine_refuses_culling_ranks_and_communicators() {
     assert_eq!("Bricks".parse::<Engine>(), Ok(Engine::Bricks));
     assert!("vtk".parse::<Engine>().is_err());
 }
+
+#[test]
+fn a_scene_with_another_family_renders_as_one_built_with_it_and_keeps_matching_pofs() {
+    let (v, tf) = head(24);
+    let s = Scene::builder(v, tf.clone())
+        .build()
+        .unwrap()
+        .with_range_bound(4.0);
+    let cam = camera(&s, 30.0);
+    // New colours and weights, same bases: the POFs still bound the opacity.
+    let mut recoloured = tf.clone();
+    recoloured.color = vec![[0.0, 0.1, 0.9, 0.2], [255.0, 0.9, 0.1, 0.1]];
+    recoloured.weights = vec![2.0, 0.5];
+    let r = s.with_family(recoloured.clone()).unwrap();
+    assert!(r.pofs().is_some(), "same bases keep the POFs");
+    assert_eq!(r.family(), &recoloured);
+    // Reshaped bases: the POFs no longer bound them.
+    let mut reshaped = tf.clone();
+    reshaped.bases[0].opacity[1][1] = 0.5;
+    let q = s.with_family(reshaped.clone()).unwrap();
+    assert!(q.pofs().is_none(), "other bases drop the POFs");
+    for (scene, family) in [(&r, recoloured), (&q, reshaped)] {
+        let (v, _) = head(24);
+        let fresh = Scene::builder(v, family).build().unwrap();
+        for cull in [Cull::None, Cull::Exact] {
+            let req = FrameRequest::new(&cam).cull(cull);
+            let got = scene.render(&req).unwrap().image;
+            assert_eq!(got.pixels(), fresh.render(&req).unwrap().image.pixels());
+        }
+    }
+    let mut bad = tf;
+    bad.weights = vec![1.0];
+    assert!(matches!(s.with_family(bad), Err(Error::WeightCount { .. })));
+}
