@@ -226,11 +226,19 @@ impl Camera {
             file: file.clone(),
             err,
         })?;
-        let cam: Camera = serde_json::from_str(&text).map_err(|err| CameraError::Json {
-            file: file.clone(),
+        Self::from_json(&text, &file)
+    }
+
+    /// Parses and validates camera JSON text; `file` names it in errors.
+    ///
+    /// # Errors
+    /// [`CameraError::Json`] or [`CameraError::Field`] naming `file`.
+    pub fn from_json(text: &str, file: &str) -> Result<Self, CameraError> {
+        let cam: Camera = serde_json::from_str(text).map_err(|err| CameraError::Json {
+            file: file.to_string(),
             err,
         })?;
-        cam.validate(&file)?;
+        cam.validate(file)?;
         Ok(cam)
     }
 
