@@ -361,37 +361,74 @@ fn a_write_cut_short_by_the_file_size_limit_leaves_no_partial_file() {
     assert_eq!(leftovers(dir.path()), Vec::<String>::new());
 }
 
+#[cfg(unix)]
 #[test]
-#[ignore = "needs root (mounts a 64 KiB tmpfs)"]
-fn a_full_output_directory_fails_cleanly_and_leaves_no_partial_file() {
+fn a_killed_pof_build_leaves_no_pof_and_its_partial_resumes_or_is_rebuilt_to_the_same_file() {
     let dir = tempfile::tempdir().unwrap();
-    let mnt = dir.path().join("full");
-    std::fs::create_dir(&mnt).unwrap();
-    let st = Command::new("mount")
-        .args(["-t", "tmpfs", "-o", "size=64k", "tmpfs"])
-        .arg(&mnt)
-        .status()
-        .unwrap();
-    assert!(st.success(), "mount a tmpfs");
-    let o = pofvr(
-        &[
-            "render",
-            "phantom:smooth-head:32",
-            "--size",
-            "512x512",
-            "--out",
-            "full/o.png",
-            "--out-raw",
-            "full/o.raw",
+    let build = |out: &str, extra: &[&str]| {
+        let mut args = vec![
+            "pof",
+            "build",
+            "phantom:smooth-head:64",
+            "--brick",
+            "8",
+            "--views",
+            "12,12",
             "--quiet",
-        ],
-        dir.path(),
+            "-o",
+            out,
+        ];
+        args.extend_from_slice(extra);
+        pofvr_cmd(&args, dir.path())
+    };
+    let o = build("fresh.pof", &["--no-resume"]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let fresh = std::fs::read(dir.path().join("fresh.pof")).unwrap();
+
+    // Killed (SIGKILL: no clean-up runs) once some bricks are in the partial file.
+    let partial = dir.path().join("a.pof.partial");
+    let mut child = build("a.pof", &[]).spawn().unwrap();
+    let start = std::time::Instant::now();
+    while std::fs::metadata(&partial).map_or(0, |m| m.len()) < 200 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the build ended before it could be killed"
+        );
+        assert!(start.elapsed() < std::time::Duration::from_secs(60));
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(
+        !dir.path().join("a.pof").exists(),
+        "no .pof from a killed build"
     );
-    let left = leftovers(&mnt);
-    let raw_exists = mnt.join("o.raw").exists();
-    Command::new("umount").arg(&mnt).status().unwrap();
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(stderr(&o).contains("No space left"), "{}", stderr(&o));
-    assert_eq!(left, Vec::<String>::new());
-    assert!(!raw_exists, "the float image (1 MiB) cannot fit in 64 KiB");
+    let kept = std::fs::read(&partial).unwrap();
+    assert!(kept.len() >= 200);
+
+    // Resumed from the partial file: the same bytes as the uninterrupted build.
+    let o = build("a.pof", &[]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read(dir.path().join("a.pof")).unwrap(), fresh);
+    assert!(!partial.exists());
+
+    // A partial file cut anywhere (inside its header, inside an entry) or overwritten is
+    // rebuilt or resumed from its intact entries only, never trusted past them.
+    let mut flipped = kept.clone();
+    let last = flipped.len() - 3;
+    flipped[last] ^= 0x55;
+    for bad in [
+        kept[..5].to_vec(),
+        kept[..16].to_vec(),
+        kept[..kept.len() - 3].to_vec(),
+        flipped,
+        vec![0xAB; kept.len()],
+    ] {
+        std::fs::remove_file(dir.path().join("a.pof")).unwrap();
+        std::fs::write(&partial, &bad).unwrap();
+        let o = build("a.pof", &[]).output().unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert_eq!(std::fs::read(dir.path().join("a.pof")).unwrap(), fresh);
+        assert!(!partial.exists());
+    }
 }

@@ -312,7 +312,10 @@ async fn clients_dragging_at_once_get_no_5xx_and_stale_frames_are_superseded() {
     )
     .await;
     assert!(load.rendered >= 10, "{load:?}");
-    assert!(load.p50_ms <= load.p99_ms && load.p99_ms < 10_000.0, "{load:?}");
+    assert!(
+        load.p50_ms <= load.p99_ms && load.p99_ms < 10_000.0,
+        "{load:?}"
+    );
     assert_eq!(load.rendered + load.superseded, load.requests);
     assert!(load.peak_rss_mib < 1024.0, "{load:?}");
     assert_eq!(v.status().rendering, 0);
@@ -331,7 +334,10 @@ async fn fifty_clients_dragging_for_thirty_seconds() {
     )
     .await;
     assert!(load.rendered >= 50, "{load:?}");
-    assert!(load.p50_ms <= load.p99_ms && load.p99_ms < 30_000.0, "{load:?}");
+    assert!(
+        load.p50_ms <= load.p99_ms && load.p99_ms < 30_000.0,
+        "{load:?}"
+    );
     assert!(load.superseded > 0, "{load:?}");
     assert!(load.peak_rss_mib < 2048.0, "{load:?}");
     assert_eq!(v.status().rendering, 0);
