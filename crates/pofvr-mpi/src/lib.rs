@@ -337,16 +337,24 @@ static SIGNAL_PREFIX: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
 
 /// The handler of [`install_signal_abort`]: only async-signal-safe calls (`write`, `_exit`).
 extern "C" fn signal_abort(sig: libc::c_int) {
-    let name: &[u8] = match sig {
-        libc::SIGTERM => b"SIGTERM",
-        libc::SIGINT => b"SIGINT",
-        libc::SIGHUP => b"SIGHUP",
-        libc::SIGSEGV => b"SIGSEGV",
-        libc::SIGBUS => b"SIGBUS",
-        _ => b"fatal signal",
+    // mpirun also sends SIGTERM to the peers of a rank that aborted: the suffix tells
+    // those lines from the first, which names the cause.
+    let (name, why): (&[u8], &[u8]) = match sig {
+        libc::SIGTERM => (
+            b"SIGTERM",
+            b" (sent to it: mpirun ending the job, or a kill)",
+        ),
+        libc::SIGINT => (b"SIGINT", b" (an interrupt)"),
+        libc::SIGHUP => (b"SIGHUP", b" (its terminal closed)"),
+        libc::SIGSEGV => (b"SIGSEGV", b" (a memory fault)"),
+        libc::SIGBUS => (
+            b"SIGBUS",
+            b" (a bus error: a memory-mapped file that shrank?)",
+        ),
+        _ => (b"fatal signal", b""),
     };
     if let Some(prefix) = SIGNAL_PREFIX.get() {
-        for part in [prefix.as_slice(), name, b"\n"] {
+        for part in [prefix.as_slice(), name, why, b"\n"] {
             // SAFETY: write(2) is async-signal-safe; the buffers outlive the call.
             unsafe { libc::write(2, part.as_ptr().cast(), part.len()) };
         }
