@@ -77,10 +77,11 @@ fn hint_of(cause: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
 }
 
 /// The flag of a library error that is about a value set by a flag other than the
-/// settings of [`flag_of`]: weights, owners per brick, POF levels.
+/// settings of [`flag_of`]: weights, orbit angles, owners per brick, POF levels.
 fn flag_of_value(cause: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
     use pofvr::distribute::DistributeError;
     use pofvr::pof::PofError;
+    use pofvr::render::camera::{self, CameraError};
     use pofvr::render::TfError;
     let tf = cause
         .downcast_ref::<TfError>()
@@ -92,6 +93,23 @@ fn flag_of_value(cause: &(dyn std::error::Error + 'static)) -> Option<&'static s
         if file == pofvr::render::transfer_function::GIVEN_WEIGHTS {
             return Some("--weights");
         }
+    }
+    let camera = cause
+        .downcast_ref::<CameraError>()
+        .or_else(|| match cause.downcast_ref() {
+            Some(pofvr::Error::Camera(c)) => Some(c),
+            _ => None,
+        });
+    match camera {
+        Some(CameraError::Angle { .. }) => return Some("--view"),
+        Some(CameraError::Field { file, field, .. }) if file == camera::ORBIT => {
+            return Some(if *field == "width" {
+                "--size"
+            } else {
+                "--view"
+            });
+        }
+        _ => {}
     }
     let dist = cause
         .downcast_ref::<DistributeError>()

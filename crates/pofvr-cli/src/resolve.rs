@@ -85,7 +85,13 @@ pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
         }
         _ => bail!("raw volumes need both --dims X,Y,Z and --dtype u8|u16|i16|f32"),
     };
-    Ok(Volume::open(path, raw.as_ref())?)
+    match Volume::open(path, raw.as_ref()) {
+        // Raw spacing comes from the flag; a header's spacing is the file's own fault.
+        Err(e @ pofvr::volume::VolumeError::BadSpacing { .. }) if raw.is_some() => {
+            Err(anyhow::Error::new(e).context("--spacing"))
+        }
+        r => Ok(r?),
+    }
 }
 
 /// The family: the file, the phantom's built-in one, or `None` when neither applies.
@@ -134,7 +140,18 @@ pub(crate) fn camera(v: &ViewArgs, volume: &Volume) -> Result<Camera> {
         .projection
         .parse()
         .map_err(|e: String| anyhow!("--projection: {e}"))?;
-    Ok(Camera::orbit(volume, view[0], view[1], w, h, projection))
+    Ok(Camera::try_orbit(
+        volume, view[0], view[1], w, h, projection,
+    )?)
+}
+
+/// `AZ,EL` in degrees, both finite (a NaN angle would put every ray at NaN).
+pub(crate) fn view(s: &str) -> Result<[f64; 2]> {
+    let v = parse_list::<f64>("--view", s, Some(2))?;
+    if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+        bail!("--view: {x} is not a finite angle in degrees (in {s:?})");
+    }
+    Ok([v[0], v[1]])
 }
 
 /// Ray-caster settings.

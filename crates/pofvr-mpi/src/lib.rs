@@ -282,7 +282,9 @@ impl MpiCommunicator {
     }
 
     /// Makes a panic on any thread of this process abort the whole MPI job (after the usual
-    /// panic message), naming this rank and the panic, so no peer waits for a dead rank.
+    /// panic message), naming this rank and the panic, so no peer waits for a dead rank; a
+    /// fatal signal (SIGTERM, SIGINT, SIGHUP, SIGSEGV, SIGBUS) prints the same line naming
+    /// the signal and exits with [`ABORT_CODE`], which makes `mpirun` end the job.
     pub fn install_panic_abort(&self) {
         HOOK_RANK.store(self.rank.0, Ordering::SeqCst);
         let previous = std::panic::take_hook();
@@ -304,6 +306,7 @@ impl MpiCommunicator {
                 .unwrap_or_default();
             abort_job(Rank(rank), &format!("panic: {what}{at}"));
         }));
+        install_signal_abort(self.rank);
     }
 
     /// Prints `pofvr: rank R aborted: REASON` to stderr and ends every process of the job
@@ -326,6 +329,59 @@ impl MpiCommunicator {
                 size: self.size,
             })
         }
+    }
+}
+
+/// `pofvr: rank R aborted: signal ` for the signal handler, which must not allocate.
+static SIGNAL_PREFIX: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+
+/// The handler of [`install_signal_abort`]: only async-signal-safe calls (`write`, `_exit`).
+extern "C" fn signal_abort(sig: libc::c_int) {
+    // mpirun also sends SIGTERM to the peers of a rank that aborted: the suffix tells
+    // those lines from the first, which names the cause.
+    let (name, why): (&[u8], &[u8]) = match sig {
+        libc::SIGTERM => (
+            b"SIGTERM",
+            b" (sent to it: mpirun ending the job, or a kill)",
+        ),
+        libc::SIGINT => (b"SIGINT", b" (an interrupt)"),
+        libc::SIGHUP => (b"SIGHUP", b" (its terminal closed)"),
+        libc::SIGSEGV => (b"SIGSEGV", b" (a memory fault)"),
+        libc::SIGBUS => (
+            b"SIGBUS",
+            b" (a bus error: a memory-mapped file that shrank?)",
+        ),
+        _ => (b"fatal signal", b""),
+    };
+    if let Some(prefix) = SIGNAL_PREFIX.get() {
+        for part in [prefix.as_slice(), name, why, b"\n"] {
+            // SAFETY: write(2) is async-signal-safe; the buffers outlive the call.
+            unsafe { libc::write(2, part.as_ptr().cast(), part.len()) };
+        }
+    }
+    // SAFETY: _exit(2) is async-signal-safe and ends the process at once; mpirun sees a rank
+    // exit without MPI_Finalize and ends the job.
+    unsafe { libc::_exit(ABORT_CODE) }
+}
+
+/// Routes the fatal signals a rank can get mid-frame (mpirun forwarding a Ctrl-C, a kill, a
+/// fault in a memory-mapped volume whose file shrank) to [`signal_abort`].
+fn install_signal_abort(rank: Rank) {
+    let _ = SIGNAL_PREFIX.set(format!("pofvr: rank {rank} aborted: signal ").into_bytes());
+    for sig in [
+        libc::SIGTERM,
+        libc::SIGINT,
+        libc::SIGHUP,
+        libc::SIGSEGV,
+        libc::SIGBUS,
+    ] {
+        // SAFETY: the handler only calls async-signal-safe functions.
+        unsafe {
+            libc::signal(
+                sig,
+                signal_abort as extern "C" fn(libc::c_int) as libc::sighandler_t,
+            )
+        };
     }
 }
 

@@ -84,7 +84,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
     } else {
         a.view
             .iter()
-            .map(|v| resolve::parse_list::<f64>("--view", v, Some(2)).map(|x| [x[0], x[1]]))
+            .map(|v| resolve::view(v))
             .collect::<Result<_>>()?
     };
     let mut volumes = Vec::new();
@@ -223,7 +223,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
     let tf = resolve::required_tf(&tf_args, spec)?;
     let job = RenderJob::new(vol, tf, 16, RenderSettings::default())?;
     sp.finish_and_clear();
-    let view = resolve::parse_list::<f64>("--view", &a.view, Some(2))?;
+    let view = resolve::view(&a.view)?;
     let (w, h) = resolve::size(&a.size)?;
     let cam = Camera::orbit(
         &job.volume,

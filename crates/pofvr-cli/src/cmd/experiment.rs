@@ -133,7 +133,7 @@ impl Plan {
         if !(1..=256).contains(&breakdown_ranks) {
             bail!("--breakdown-ranks {breakdown_ranks} must be in 1..=256");
         }
-        let view = resolve::parse_list::<f64>("--view", &a.view, Some(2))?;
+        let view = resolve::view(&a.view)?;
         if !(a.cull_threshold > 0.0 && a.cull_threshold <= 1.0) {
             bail!("--cull-threshold {} must be in (0, 1]", a.cull_threshold);
         }

@@ -79,6 +79,14 @@ pub enum CameraError {
         #[source]
         err: serde_json::Error,
     },
+    /// An orbit angle that is not a finite number of degrees.
+    #[error("{what}: got {got}, expected a finite angle in degrees")]
+    Angle {
+        /// `azimuth` or `elevation`.
+        what: &'static str,
+        /// The angle given.
+        got: f64,
+    },
     /// A field is out of range.
     #[error("{file}: {field}: {why}")]
     Field {
@@ -90,6 +98,14 @@ pub enum CameraError {
         why: String,
     },
 }
+
+/// The source that [`CameraError::Field`] names for a camera built by
+/// [`Camera::try_orbit`].
+pub const ORBIT: &str = "the orbit camera";
+
+/// The source that [`CameraError::Field`] names for a camera handed to a render call rather
+/// than read from a file.
+pub const GIVEN_CAMERA: &str = "the camera given";
 
 /// An orthonormal view frame.
 #[derive(Clone, Copy, Debug)]
@@ -125,6 +141,31 @@ impl Camera {
     ) -> Self {
         let ext = volume.world_extent().map(f64::from);
         Self::orbit_box(ext, azimuth, elevation, width, height, projection)
+    }
+
+    /// As [`Camera::orbit`], with the angles and image size checked first: a non-finite
+    /// angle would put every ray at NaN.
+    ///
+    /// # Errors
+    /// [`CameraError::Angle`] for a non-finite azimuth or elevation, [`CameraError::Field`]
+    /// (source [`ORBIT`]) for an image size outside 1..=16384 or a volume whose extent makes
+    /// no usable view.
+    pub fn try_orbit(
+        volume: &Volume,
+        azimuth: f64,
+        elevation: f64,
+        width: u32,
+        height: u32,
+        projection: Projection,
+    ) -> Result<Self, CameraError> {
+        for (what, got) in [("azimuth", azimuth), ("elevation", elevation)] {
+            if !got.is_finite() {
+                return Err(CameraError::Angle { what, got });
+            }
+        }
+        let cam = Self::orbit(volume, azimuth, elevation, width, height, projection);
+        cam.validate(ORBIT)?;
+        Ok(cam)
     }
 
     /// As [`Camera::orbit`] for a box `[0, extent]`.
@@ -185,19 +226,28 @@ impl Camera {
             file: file.clone(),
             err,
         })?;
-        let cam: Camera = serde_json::from_str(&text).map_err(|err| CameraError::Json {
-            file: file.clone(),
+        Self::from_json(&text, &file)
+    }
+
+    /// Parses and validates camera JSON text; `file` names it in errors.
+    ///
+    /// # Errors
+    /// [`CameraError::Json`] or [`CameraError::Field`] naming `file`.
+    pub fn from_json(text: &str, file: &str) -> Result<Self, CameraError> {
+        let cam: Camera = serde_json::from_str(text).map_err(|err| CameraError::Json {
+            file: file.to_string(),
             err,
         })?;
-        cam.validate(&file)?;
+        cam.validate(file)?;
         Ok(cam)
     }
 
     /// Checks that the camera defines a usable view.
     ///
     /// # Errors
-    /// [`CameraError::Field`] for zero image size, coincident eye and focal point, an up
-    /// vector parallel to the view, a non-positive scale or an angle outside (0, 180).
+    /// [`CameraError::Field`] for a non-finite number in any field, zero image size,
+    /// coincident eye and focal point, a zero up vector or one parallel to the view, a
+    /// non-positive scale or an angle outside (0, 180).
     pub fn validate(&self, file: &str) -> Result<(), CameraError> {
         let bad = |field, why: &str| {
             Err(CameraError::Field {
@@ -209,20 +259,39 @@ impl Camera {
         if self.width == 0 || self.height == 0 || self.width > 16384 || self.height > 16384 {
             return bad("width", "image size must be 1..=16384 on each side");
         }
+        for (field, v) in [
+            ("position", self.position),
+            ("focal_point", self.focal_point),
+            ("view_up", self.view_up),
+        ] {
+            if v.iter().any(|x| !x.is_finite()) {
+                return bad(field, "must be three finite numbers");
+            }
+        }
+        for (field, x) in [
+            ("parallel_scale", self.parallel_scale),
+            ("view_angle", self.view_angle),
+        ] {
+            if !x.is_finite() {
+                return bad(field, "must be a finite number");
+            }
+        }
         let f = DVec3::from(self.focal_point) - DVec3::from(self.position);
-        if !f.is_finite() || f.length() < 1e-9 {
+        // The difference of two finite points can still overflow to infinity.
+        if !(f.is_finite() && f.length().is_finite()) {
+            return bad("position", "is too far from focal_point");
+        }
+        if f.length() < 1e-9 {
             return bad("position", "must differ from focal_point");
         }
         let up = DVec3::from(self.view_up);
-        if !up.is_finite() || f.normalize().cross(up).length() < 1e-9 {
-            return bad(
-                "view_up",
-                "must not be zero or parallel to the view direction",
-            );
+        if !up.is_finite() || up.length() < 1e-12 {
+            return bad("view_up", "must not be zero");
         }
-        if self.projection == Projection::Orthographic
-            && !(self.parallel_scale > 0.0 && self.parallel_scale.is_finite())
-        {
+        if f.normalize().cross(up.normalize()).length() < 1e-9 {
+            return bad("view_up", "must not be parallel to the view direction");
+        }
+        if self.projection == Projection::Orthographic && self.parallel_scale <= 0.0 {
             return bad("parallel_scale", "must be > 0");
         }
         if self.projection == Projection::Perspective
@@ -464,5 +533,44 @@ mod tests {
         assert!(j.contains("\"perspective\""));
         let back: Camera = serde_json::from_str(&j).unwrap();
         assert_eq!(back, cam);
+    }
+
+    #[test]
+    fn non_finite_angles_and_fields_are_rejected_naming_them() {
+        let vol = crate::volume::phantom::Phantom::SheppLogan.generate(8);
+        for (az, el, what) in [
+            (f64::NAN, 0.0, "azimuth"),
+            (0.0, f64::INFINITY, "elevation"),
+        ] {
+            let e = Camera::try_orbit(&vol, az, el, 8, 8, Projection::Orthographic).unwrap_err();
+            assert!(
+                matches!(e, CameraError::Angle { what: w, .. } if w == what),
+                "{e}"
+            );
+            assert!(!e.to_string().contains("--"), "{e}");
+        }
+        let good = Camera::try_orbit(&vol, 10.0, 95.0, 8, 8, Projection::Orthographic).unwrap();
+        let field_of = |c: &Camera| match c.validate("f") {
+            Err(CameraError::Field { field, .. }) => field,
+            other => panic!("{other:?}"),
+        };
+        let mut c = good.clone();
+        c.position[1] = f64::NAN;
+        assert_eq!(field_of(&c), "position");
+        let mut c = good.clone();
+        c.view_up = [0.0; 3];
+        assert_eq!(field_of(&c), "view_up");
+        let mut c = good.clone();
+        c.view_up = (DVec3::from(good.focal_point) - DVec3::from(good.position)).to_array();
+        assert_eq!(field_of(&c), "view_up");
+        let mut c = good.clone();
+        c.parallel_scale = f64::INFINITY;
+        assert_eq!(field_of(&c), "parallel_scale");
+        let mut c = good.clone();
+        c.view_angle = f64::NAN;
+        assert_eq!(field_of(&c), "view_angle");
+        let mut c = good;
+        c.parallel_scale = -1.0;
+        assert_eq!(field_of(&c), "parallel_scale");
     }
 }

@@ -31,6 +31,7 @@ use crate::distribute::{BrickAssignment, Curve};
 use crate::error::{Error, Result};
 use crate::frame::{self, FrameOptions, Look, RenderJob};
 use crate::pof::PofTable;
+use crate::render::camera::GIVEN_CAMERA;
 use crate::render::{CellRanges, SampledTf, TransferFunction};
 use crate::volume::{Volume, VoxelData, Voxels};
 
@@ -319,6 +320,7 @@ impl Scene {
 
     /// The weights, shading and frame options of `req`, checked.
     fn resolve<'s>(&'s self, req: &FrameRequest<'s>) -> Result<(Look<'s>, FrameOptions)> {
+        req.camera.validate(GIVEN_CAMERA)?;
         let weights = req.weights.unwrap_or(&self.job.tf.weights);
         check_weights(&self.job.tf, weights)?;
         let mode = req.cull.mode();
@@ -392,7 +394,8 @@ impl Scene {
     /// count, curve or replicas.
     ///
     /// # Errors
-    /// [`Error::WeightCount`], [`Error::Weight`], [`Error::OutOfRange`] (threshold, ranks),
+    /// [`Error::Camera`] for a camera that defines no view, [`Error::WeightCount`],
+    /// [`Error::Weight`], [`Error::OutOfRange`] (threshold, ranks),
     /// [`Error::ForeignPofs`], [`Error::JitteredPofs`], [`Error::Engine`], or a failed rank's
     /// error.
     pub fn render(&self, req: &FrameRequest<'_>) -> Result<Frame> {
@@ -436,8 +439,10 @@ impl Scene {
     /// are checked against it.
     ///
     /// # Errors
-    /// [`Error::WeightCount`] or [`Error::Weight`] for bad weights.
+    /// [`Error::Camera`] for a camera that defines no view, [`Error::WeightCount`] or
+    /// [`Error::Weight`] for bad weights.
     pub fn render_reference(&self, req: &FrameRequest<'_>) -> Result<Frame> {
+        req.camera.validate(GIVEN_CAMERA)?;
         let weights = req.weights.unwrap_or(&self.job.tf.weights);
         check_weights(&self.job.tf, weights)?;
         let look = Look {

@@ -31,8 +31,8 @@ pub enum VolumeError {
         /// Why they are rejected.
         why: String,
     },
-    /// Spacing not finite and positive.
-    #[error("{file}: bad spacing {spacing:?}: every component must be finite and > 0")]
+    /// Spacing not finite and positive, or a world extent that overflows.
+    #[error("{file}: bad spacing {spacing:?}: every component must be finite and > 0, and the world extent (spacing × voxels) finite")]
     BadSpacing {
         /// The file.
         file: String,

@@ -214,7 +214,8 @@ impl Volume {
     /// # Errors
     /// [`VolumeError::BadDims`] when a dimension is zero or the product overflows,
     /// [`VolumeError::SizeMismatch`] when `data` has the wrong length,
-    /// [`VolumeError::BadSpacing`] for a non-positive spacing and
+    /// [`VolumeError::BadSpacing`] for a non-positive spacing or one that makes the world
+    /// extent overflow, and
     /// [`VolumeError::NonFinite`] for NaN or Inf in float data.
     pub fn new(
         dims: [usize; 3],
@@ -224,7 +225,11 @@ impl Volume {
     ) -> Result<Self, VolumeError> {
         let source = source.into();
         let n = checked_voxel_count(&source, dims)?;
-        if spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        // A finite spacing times the voxel count can still overflow f32: every camera and
+        // ray built on that extent would be NaN.
+        let extent_ok =
+            (0..3).all(|a| ((dims[a].saturating_sub(1)) as f32 * spacing[a]).is_finite());
+        if !extent_ok || spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(VolumeError::BadSpacing {
                 file: source,
                 spacing,

@@ -227,3 +227,42 @@ fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
     }
     Ok(n)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A single-file NIfTI-1 of 4³ u8 voxels with the given `pixdim[1..4]`.
+    fn nii(pixdim: [f32; 3]) -> Vec<u8> {
+        let mut h = vec![0u8; 352];
+        h[0..4].copy_from_slice(&348i32.to_le_bytes());
+        for (i, d) in [3i16, 4, 4, 4, 1, 1, 1, 1].iter().enumerate() {
+            h[40 + 2 * i..42 + 2 * i].copy_from_slice(&d.to_le_bytes());
+        }
+        h[70..72].copy_from_slice(&2i16.to_le_bytes());
+        h[72..74].copy_from_slice(&8i16.to_le_bytes());
+        for (i, p) in [1.0f32, pixdim[0], pixdim[1], pixdim[2]].iter().enumerate() {
+            h[76 + 4 * i..80 + 4 * i].copy_from_slice(&p.to_le_bytes());
+        }
+        h[108..112].copy_from_slice(&352f32.to_le_bytes());
+        h[344..348].copy_from_slice(b"n+1\0");
+        h.extend(0..64u8);
+        h
+    }
+
+    /// Fuzz finding (nifti target): a finite pixdim whose product with the voxel count
+    /// overflows f32 gave an infinite world extent, and NaN cameras and rays.
+    #[test]
+    fn a_spacing_whose_world_extent_overflows_is_rejected() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("v.nii");
+        std::fs::write(&p, nii([1.0, 1.5, 2.0])).unwrap();
+        assert_eq!(open(&p).unwrap().spacing(), [1.0, 1.5, 2.0]);
+        std::fs::write(&p, nii([1.0, 1.0, -1.7e38])).unwrap();
+        let msg = open(&p).unwrap_err().to_string();
+        assert!(
+            msg.contains("v.nii") && msg.contains("bad spacing"),
+            "{msg}"
+        );
+    }
+}

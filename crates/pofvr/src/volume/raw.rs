@@ -121,26 +121,23 @@ pub fn from_reader(
     let name = source.display().to_string();
     let n = checked_voxel_count(&name, spec.dims)?;
     let expected = n * spec.dtype.size();
-    let mut bytes = vec![0u8; expected];
-    let mut filled = 0;
-    while filled < expected {
-        match reader.read(&mut bytes[filled..]) {
-            Ok(0) => {
-                return Err(VolumeError::Decode {
-                    file: name,
-                    why: format!("data end after {filled} of {expected} bytes (truncated?)"),
-                })
-            }
-            Ok(k) => filled += k,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => {
-                return Err(VolumeError::Decode {
-                    file: name,
-                    why: e.to_string(),
-                })
-            }
-        }
+    // The buffer grows with the data that actually arrives: the header's sizes are a claim,
+    // and a few bytes of stream claiming 10¹² voxels must fail as truncated, not allocate.
+    let mut bytes = Vec::with_capacity(expected.min(1 << 20));
+    let filled = (&mut reader)
+        .take(expected as u64)
+        .read_to_end(&mut bytes)
+        .map_err(|e| VolumeError::Decode {
+            file: name.clone(),
+            why: e.to_string(),
+        })?;
+    if filled < expected {
+        return Err(VolumeError::Decode {
+            file: name,
+            why: format!("data end after {filled} of {expected} bytes (truncated?)"),
+        });
     }
+    bytes.shrink_to_fit();
     let mut extra = [0u8; 1];
     match reader.read(&mut extra) {
         Ok(0) => {}
@@ -168,4 +165,25 @@ pub fn from_reader(
         DataType::F32 => VoxelData::F32(Voxels::from_bytes(&bytes, big)),
     };
     Volume::new(spec.dims, spec.spacing, data, name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Fuzz finding (nrrd target): a gzip NRRD whose `sizes` claim 10¹² voxels allocated
+    /// them all before reading the stream, and aborted the process.
+    #[test]
+    fn a_stream_claiming_more_voxels_than_it_holds_fails_before_allocating_them() {
+        let spec = RawSpec::new([10_000, 10_000, 10_000], DataType::F32);
+        let err = from_reader(Path::new("huge.nrrd"), &[1u8, 2, 3][..], &spec).unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains("huge.nrrd") && msg.contains("after 3 of 4000000000000 bytes"),
+            "{msg}"
+        );
+        let spec = RawSpec::new([2, 2, 1], DataType::U16);
+        let v = from_reader(Path::new("ok.nrrd"), &[1u8, 0, 2, 0, 3, 0, 4, 0][..], &spec).unwrap();
+        assert_eq!(v.value(1, 1, 0), 4.0);
+    }
 }
