@@ -18,6 +18,15 @@ use pyo3::prelude::*;
 
 use crate::error::OrPy;
 
+/// `v` as Python writes a tuple: `(4, 4)`, `(4,)`.
+fn tuple<T: std::fmt::Display>(v: &[T]) -> String {
+    let items: Vec<String> = v.iter().map(ToString::to_string).collect();
+    match items.as_slice() {
+        [one] => format!("({one},)"),
+        _ => format!("({})", items.join(", ")),
+    }
+}
+
 /// What volumes made from arrays are called in messages.
 pub(crate) const SOURCE: &str = "numpy array";
 
@@ -43,7 +52,8 @@ pub(crate) fn volume(obj: &Bound<'_, PyAny>, spacing: [f32; 3]) -> PyResult<Volu
     let shape = arr.shape().to_vec();
     if shape.len() != 3 {
         return Err(PyValueError::new_err(format!(
-            "volume: expected a 3-D array of shape (z, y, x), got shape {shape:?} ({} dimensions)",
+            "volume: expected a 3-D array of shape (z, y, x), got shape {} ({} dimensions)",
+            tuple(&shape),
             shape.len()
         )));
     }
@@ -71,13 +81,15 @@ pub(crate) fn volume(obj: &Bound<'_, PyAny>, spacing: [f32; 3]) -> PyResult<Volu
     };
     if !arr.is_c_contiguous() {
         return Err(PyValueError::new_err(format!(
-            "volume: strides {:?} (bytes) of shape {shape:?} are not C-contiguous; pass numpy.ascontiguousarray(arr) (a copy)",
-            arr.strides()
+            "volume: strides {} (bytes) of shape {} are not C-contiguous; pass numpy.ascontiguousarray(arr) (a copy)",
+            tuple(arr.strides()),
+            tuple(&shape)
         )));
     }
     if shape.contains(&0) {
         return Err(PyValueError::new_err(format!(
-            "volume: shape {shape:?} has a zero dimension; every dimension must be at least 1"
+            "volume: shape {} has a zero dimension; every dimension must be at least 1",
+            tuple(&shape)
         )));
     }
     let dims = [shape[2], shape[1], shape[0]];

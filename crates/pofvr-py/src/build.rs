@@ -50,13 +50,16 @@ pub(crate) fn build_pofs(
                 worker.is_finished()
             });
             let now = (done.load(Ordering::Relaxed), total.load(Ordering::Relaxed));
+            let mut checked = Ok(());
             if now.1 != u64::MAX && shown != Some(now) {
                 shown = Some(now);
-                show(py, progress, now.0, now.1)?;
+                // A signal arriving while the callback runs Python code is raised there.
+                checked = show(py, progress, now.0, now.1);
             }
-            if let Err(e) = py.check_signals() {
+            if let Err(e) = checked.and_then(|()| py.check_signals()) {
                 cancel.store(true, Ordering::Relaxed);
-                // Bricks in flight finish (one per worker); none start after the flag.
+                // Bricks in flight finish (one per worker); none start after the flag. The
+                // scope would wait for the worker anyway: it must stop first.
                 let _ = py.allow_threads(|| worker.join());
                 return Err(e);
             }
