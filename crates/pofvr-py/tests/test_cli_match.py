@@ -1,6 +1,7 @@
 """numpy input renders bit for bit the float image `pofvr render --out-raw` writes for the
 same data (written as a raw file), camera and family."""
 
+import io
 import json
 import subprocess
 
@@ -58,6 +59,13 @@ def test_numpy_matches_cli_bit_for_bit(cli, tmp_path, dtype, scale, spacing, fla
     for key in ("rays", "samples", "engine", "cull", "bricks", "skipped_samples"):
         assert frame.stats[key] == stats[key], key
     assert img[..., 3].max() > 0.2, "the frame is not empty"
+
+    # save() writes what the CLI writes; Jupyter's PNG holds the rgba pixels.
+    frame.save(tmp_path / "py.raw")
+    assert (tmp_path / "py.raw").read_bytes() == (tmp_path / "out.raw").read_bytes()
+    frame.save(tmp_path / "py.png")
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "py.png")), png)
+    assert np.array_equal(np.asarray(Image.open(io.BytesIO(frame._repr_png_()))), png)
 
     # The camera dict goes back in and gives the same frame.
     again = scene.render(camera=frame.camera, **kwargs)
