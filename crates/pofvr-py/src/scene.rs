@@ -245,16 +245,32 @@ impl PyScene {
     /// Loads POFs from a ``.pof`` file (``pofvr pof build``), checked to be for this
     /// volume, bricks, family, step and threshold, and attaches them.
     fn load_pofs(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        // Checked on a scene still shared, so that a bad file leaves this one as it was.
+        // Every check `with_pofs` makes is made first, on the scene still shared: handing
+        // the scene over to a check that fails would lose it.
         let scene = self.get()?;
-        py.allow_threads(|| pofvr::pof::PofTable::open(&path))
-            .or_py()
-            .and_then(|t| {
-                t.check_matches(scene.volume(), scene.grid(), scene.family())
-                    .or_py()
-            })?;
+        let table = py
+            .allow_threads(|| pofvr::pof::PofTable::open(&path))
+            .or_py()?;
+        table
+            .check_matches(scene.volume(), scene.grid(), scene.family())
+            .or_py()?;
+        for (what, in_file, own) in [
+            ("sample step", table.step(), scene.step()),
+            (
+                "early-termination threshold",
+                table.ert(),
+                scene.early_termination(),
+            ),
+        ] {
+            if in_file != own {
+                return Err(input_error(format!(
+                    "{}: built for a different {what}: file has {in_file}, expected {own}",
+                    path.display()
+                )));
+            }
+        }
         drop(scene);
-        self.attach(py, move |s| s.load_pofs(&path))
+        self.attach(py, move |s| s.with_pofs(table))
     }
 
     /// Renders one frame.

@@ -1,7 +1,9 @@
 """The GIL is released while rendering and building: two Python threads render at once,
 faster than one after the other, and Ctrl-C stops a long POF build."""
 
+import json
 import os
+import subprocess
 import signal
 import threading
 import time
@@ -129,3 +131,29 @@ def test_progress_callback_and_pof_culling():
     whole = scene.render(view=(0, 0), size=(96, 96), whole=True, weights=[3, 1])
     diff = np.abs(culled.rgba_float - whole.rgba_float).max()
     assert diff < 0.05, diff
+
+
+def test_pofs_saved_by_the_cli_load_and_cull_as_the_cli(cli, tmp_path):
+    pof = tmp_path / "head.pof"
+    subprocess.run(
+        [str(cli), "pof", "build", "phantom:head:64", "--brick", "8", "--views", "8,8",
+         "--out", str(pof), "--quiet"],
+        check=True, capture_output=True,
+    )
+    out = tmp_path / "cli"
+    subprocess.run(
+        [str(cli), "render", "phantom:head:64", "--brick", "8", "--pof", str(pof), "--view", "0,0",
+         "--size", "64x64", "--weights", "3,1", "--out", f"{out}.png", "--out-raw", f"{out}.raw",
+         "--stats", f"{out}.json", "--quiet"],
+        check=True, capture_output=True,
+    )
+    scene = pofvr.open("phantom:head:64", brick=8)
+    scene.load_pofs(pof)
+    f = scene.render(view=(0, 0), size=(64, 64), weights=[3, 1])
+    assert f.stats["cull"] == "pof"
+    assert f.rgba_float.tobytes() == (tmp_path / "cli.raw").read_bytes()
+    assert f.stats["bricks"] == json.loads((tmp_path / "cli.json").read_text())["bricks"]
+    other = pofvr.open("phantom:head:64", brick=8, step=0.5)
+    with pytest.raises(pofvr.InputError, match="built for a different sample step"):
+        other.load_pofs(pof)
+    assert not other.has_pofs and other.render(size=(8, 8)).width == 8

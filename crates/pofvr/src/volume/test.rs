@@ -1024,5 +1024,9 @@ fn borrowed_voxels_read_the_owners_memory_and_keep_it_alive() {
     assert_eq!(std::sync::Arc::strong_count(&owner), 2);
     assert_eq!(v.value(1, 2, 1), owner[v.index(1, 2, 1)] as f32);
     drop(v);
-    assert_eq!(std::sync::Arc::strong_count(&owner), 1, "the owner is let go");
+    assert_eq!(
+        std::sync::Arc::strong_count(&owner),
+        1,
+        "the owner is let go"
+    );
 }
