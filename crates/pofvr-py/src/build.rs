@@ -15,7 +15,8 @@ use crate::error::OrPy;
 pub(crate) enum Progress<'py> {
     /// Not at all.
     Quiet,
-    /// A line on `sys.stderr`, rewritten in place.
+    /// A line on `sys.stderr`, rewritten in place on a terminal; elsewhere (a log, a
+    /// notebook's captured stream) one line per tenth of the bricks.
     Line,
     /// `callback(done, total)` in the calling thread.
     Call(Bound<'py, PyAny>),
@@ -42,6 +43,14 @@ pub(crate) fn build_pofs(
         total.store(t, Ordering::Relaxed);
     };
     let mut shown = None;
+    let tty = matches!(progress, Progress::Line)
+        && py
+            .import("sys")?
+            .getattr("stderr")?
+            .call_method0("isatty")
+            .and_then(|t| t.is_truthy())
+            .unwrap_or(false);
+    let mut tenth = None;
     let result = std::thread::scope(|s| {
         let worker = s.spawn(|| scene.build_pofs_cancellable(build, &record, &cancel));
         loop {
@@ -54,7 +63,7 @@ pub(crate) fn build_pofs(
             if now.1 != u64::MAX && shown != Some(now) {
                 shown = Some(now);
                 // A signal arriving while the callback runs Python code is raised there.
-                checked = show(py, progress, now.0, now.1);
+                checked = show(py, progress, tty, &mut tenth, now);
             }
             if let Err(e) = checked.and_then(|()| py.check_signals()) {
                 cancel.store(true, Ordering::Relaxed);
@@ -68,7 +77,7 @@ pub(crate) fn build_pofs(
             }
         }
     });
-    if matches!(progress, Progress::Line) && shown.is_some() {
+    if tty && shown.is_some() {
         py.import("sys")?
             .getattr("stderr")?
             .call_method1("write", ("\n",))?;
@@ -81,15 +90,29 @@ pub(crate) fn build_pofs(
     }
 }
 
-fn show(py: Python<'_>, progress: &Progress<'_>, done: u64, total: u64) -> PyResult<()> {
+fn show(
+    py: Python<'_>,
+    progress: &Progress<'_>,
+    tty: bool,
+    tenth: &mut Option<u64>,
+    (done, total): (u64, u64),
+) -> PyResult<()> {
     match progress {
         Progress::Quiet => Ok(()),
         Progress::Line => {
+            let line = format!("building POFs: {done}/{total} bricks");
+            let text = if tty {
+                format!("\r{line}")
+            } else {
+                let t = (done * 10).checked_div(total).unwrap_or(10);
+                if *tenth == Some(t) {
+                    return Ok(());
+                }
+                *tenth = Some(t);
+                format!("{line}\n")
+            };
             let err = py.import("sys")?.getattr("stderr")?;
-            err.call_method1(
-                "write",
-                (format!("\rbuilding POFs: {done}/{total} bricks"),),
-            )?;
+            err.call_method1("write", (text,))?;
             err.call_method0("flush")?;
             Ok(())
         }
