@@ -25,7 +25,7 @@
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use rayon::prelude::*;
@@ -138,6 +138,15 @@ fn validate(s: &PofSettings) -> Result<(), PofError> {
     Ok(())
 }
 
+/// What a build reports to, and what stops it.
+pub(super) struct Hooks<'a> {
+    /// Called with `(done, total)` as bricks complete.
+    pub(super) progress: &'a (dyn Fn(u64, u64) + Sync),
+    /// Once set, no further brick is started and the build ends with
+    /// [`PofError::Cancelled`].
+    pub(super) cancel: Option<&'a AtomicBool>,
+}
+
 pub(super) fn build(
     volume: &Volume,
     grid: &BrickGrid,
@@ -145,8 +154,10 @@ pub(super) fn build(
     sampled: &SampledTf,
     settings: &PofSettings,
     partial: Option<&Path>,
-    progress: &(dyn Fn(u64, u64) + Sync),
+    hooks: Hooks<'_>,
 ) -> Result<PofTable, PofError> {
+    let progress = hooks.progress;
+    let cancelled = || hooks.cancel.is_some_and(|c| c.load(Ordering::Relaxed));
     validate(settings)?;
     let p = sampled.basis_count();
     if tf.bases.len() != p {
@@ -245,17 +256,27 @@ pub(super) fn build(
     for ids in remaining.chunks(chunk) {
         let results: Vec<(u32, Option<Vec<u8>>)> = ids
             .par_iter()
-            .map(|id| {
+            .filter_map(|id| {
+                if cancelled() {
+                    return None;
+                }
                 let r = ctx.brick_record(*id);
                 let n = counter.fetch_add(1, Ordering::Relaxed) + 1;
                 progress(n, total);
-                (id.0, r)
+                Some((id.0, r))
             })
             .collect();
+        // Only finished bricks reach the partial file, so a cancelled build resumes.
         if let Some(pf) = part.as_mut() {
             pf.append(&results)?;
         }
         done.extend(results);
+        if cancelled() {
+            return Err(PofError::Cancelled {
+                done: done.len() as u64,
+                total,
+            });
+        }
     }
 
     let mut index = vec![u32::MAX; grid.len()];

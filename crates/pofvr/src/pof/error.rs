@@ -62,4 +62,12 @@ pub enum PofError {
         /// The file.
         file: String,
     },
+    /// A build stopped because its caller asked it to ([`crate::pof::PofTable::build_cancellable`]).
+    #[error("POF build cancelled after {done} of {total} bricks")]
+    Cancelled {
+        /// Bricks finished.
+        done: u64,
+        /// Bricks to build.
+        total: u64,
+    },
 }

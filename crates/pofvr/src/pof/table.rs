@@ -2,6 +2,7 @@
 //! memory-mapped from a `.pof` file, with its metadata and the checks that it fits a volume.
 
 use std::path::Path;
+use std::sync::atomic::AtomicBool;
 
 use glam::DVec3;
 
@@ -69,7 +70,33 @@ impl PofTable {
         partial: Option<&Path>,
         progress: &(dyn Fn(u64, u64) + Sync),
     ) -> Result<PofTable, PofError> {
-        build::build(volume, grid, tf, sampled, settings, partial, progress)
+        let hooks = build::Hooks {
+            progress,
+            cancel: None,
+        };
+        build::build(volume, grid, tf, sampled, settings, partial, hooks)
+    }
+
+    /// As [`PofTable::build`], stopping between bricks once `cancel` is set (by another
+    /// thread, or by `progress`): no brick starts after that, and the build ends with
+    /// [`PofError::Cancelled`].
+    ///
+    /// # Errors
+    /// As [`PofTable::build`], plus [`PofError::Cancelled`].
+    pub fn build_cancellable(
+        volume: &Volume,
+        grid: &BrickGrid,
+        tf: &TransferFunction,
+        sampled: &SampledTf,
+        settings: &PofSettings,
+        progress: &(dyn Fn(u64, u64) + Sync),
+        cancel: &AtomicBool,
+    ) -> Result<PofTable, PofError> {
+        let hooks = build::Hooks {
+            progress,
+            cancel: Some(cancel),
+        };
+        build::build(volume, grid, tf, sampled, settings, None, hooks)
     }
 
     /// Writes the table to `path` (temp file + rename).

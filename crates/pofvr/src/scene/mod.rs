@@ -15,6 +15,7 @@ mod request;
 mod test;
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};
 
 pub use builder::SceneBuilder;
@@ -245,6 +246,25 @@ impl Scene {
         let j = &self.job;
         Ok(PofTable::build_resumable(
             &j.volume, &j.grid, &j.tf, &j.sampled, &settings, partial, progress,
+        )?)
+    }
+
+    /// As [`Scene::build_pofs`], calling `progress(done, total)` as bricks complete and
+    /// stopping between bricks once `cancel` is set ([`PofTable::build_cancellable`]).
+    ///
+    /// # Errors
+    /// As [`Scene::build_pofs`], plus [`crate::pof::PofError::Cancelled`] (as
+    /// [`Error::Pof`]) when cancelled.
+    pub fn build_pofs_cancellable(
+        &self,
+        build: &PofBuild,
+        progress: &(dyn Fn(u64, u64) + Sync),
+        cancel: &AtomicBool,
+    ) -> Result<PofTable> {
+        let settings = build.settings(self.step(), self.early_termination());
+        let j = &self.job;
+        Ok(PofTable::build_cancellable(
+            &j.volume, &j.grid, &j.tf, &j.sampled, &settings, progress, cancel,
         )?)
     }
 

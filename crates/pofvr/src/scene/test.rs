@@ -476,3 +476,35 @@ fn a_scene_with_another_family_renders_as_one_built_with_it_and_keeps_matching_p
     bad.weights = vec![1.0];
     assert!(matches!(s.with_family(bad), Err(Error::WeightCount { .. })));
 }
+
+#[test]
+fn a_cancelled_pof_build_stops_between_bricks() {
+    let s = Scene::builder(head(48).0, head(48).1)
+        .brick_size(8)
+        .build()
+        .unwrap();
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let started = std::sync::atomic::AtomicU64::new(0);
+    // Cancelled from the progress hook once the first brick is done.
+    let progress = |done: u64, _total: u64| {
+        started.fetch_max(done, std::sync::atomic::Ordering::Relaxed);
+        if done >= 1 {
+            cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    };
+    let err = s
+        .build_pofs_cancellable(&small_build(), &progress, &cancel)
+        .unwrap_err();
+    let Error::Pof(PofError::Cancelled { done, total }) = err else {
+        panic!("expected a cancelled build, got {err}");
+    };
+    // At most one brick in flight per worker when the flag was set.
+    let workers = rayon::current_num_threads() as u64;
+    assert!(done >= 1 && done <= 1 + workers, "{done} of {total}");
+    assert!(total > 2 * (1 + workers), "{total} bricks");
+    // Uncancelled, the same call builds the table.
+    let quiet = std::sync::atomic::AtomicBool::new(false);
+    assert!(s
+        .build_pofs_cancellable(&small_build(), &|_, _| {}, &quiet)
+        .is_ok());
+}

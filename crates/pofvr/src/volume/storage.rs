@@ -4,18 +4,24 @@ use memmap2::Mmap;
 
 use super::Voxel;
 
-/// Typed voxels served either from a memory map (no copy) or from an owned buffer
-/// (decompressed, byte-swapped, misaligned or generated data).
+/// Typed voxels served from a memory map (no copy), from an owned buffer (decompressed,
+/// byte-swapped, misaligned or generated data), or from memory borrowed from another owner
+/// (e.g. a numpy array; no copy).
 pub struct Voxels<T: Voxel> {
     repr: Repr<T>,
 }
 
-enum Repr<T> {
+enum Repr<T: 'static> {
     Owned(Vec<T>),
     Mapped {
         map: Arc<Mmap>,
         offset: usize,
         len: usize,
+    },
+    /// Memory someone else owns, valid while `_owner` lives ([`Voxels::borrowed`]).
+    Borrowed {
+        _owner: Arc<dyn Send + Sync>,
+        data: &'static [T],
     },
 }
 
@@ -52,6 +58,26 @@ impl<T: Voxel> Voxels<T> {
         Self::from_bytes(bytes, big_endian)
     }
 
+    /// Serves the `len` voxels at `ptr` without copying them: memory that another owner
+    /// (e.g. a handle on a numpy array) manages and `owner` keeps alive.
+    ///
+    /// # Safety
+    /// `ptr` must be non-null, aligned for `T` and point to `len` initialised voxels that
+    /// stay valid, and that nothing writes, for as long as `owner` is alive (the returned
+    /// value holds it).
+    #[must_use]
+    pub unsafe fn borrowed(owner: Arc<dyn Send + Sync>, ptr: *const T, len: usize) -> Self {
+        // SAFETY: the caller's contract: valid, unwritten and alive as long as `owner`, which
+        // the value holds for as long as the slice can be reached.
+        let data: &'static [T] = unsafe { std::slice::from_raw_parts(ptr, len) };
+        Voxels {
+            repr: Repr::Borrowed {
+                _owner: owner,
+                data,
+            },
+        }
+    }
+
     /// Copies little- or big-endian bytes into an owned buffer.
     #[must_use]
     pub fn from_bytes(bytes: &[u8], big_endian: bool) -> Self {
@@ -73,6 +99,7 @@ impl<T: Voxel> Voxels<T> {
     pub fn as_slice(&self) -> &[T] {
         match &self.repr {
             Repr::Owned(v) => v,
+            Repr::Borrowed { data, .. } => data,
             Repr::Mapped { map, offset, len } => {
                 bytemuck::cast_slice(&map[*offset..*offset + *len * std::mem::size_of::<T>()])
             }
@@ -84,6 +111,7 @@ impl<T: Voxel> Voxels<T> {
     pub fn len(&self) -> usize {
         match &self.repr {
             Repr::Owned(v) => v.len(),
+            Repr::Borrowed { data, .. } => data.len(),
             Repr::Mapped { len, .. } => *len,
         }
     }

@@ -1009,3 +1009,24 @@ fn the_smooth_head_blends_the_heads_edges_over_several_voxels() {
     assert_eq!(at(&smooth, 0, 0, 0), 0.0);
     assert_eq!("smooth-head".parse::<Phantom>(), Ok(Phantom::SmoothHead));
 }
+
+#[test]
+fn borrowed_voxels_read_the_owners_memory_and_keep_it_alive() {
+    let owner: std::sync::Arc<Vec<u16>> = std::sync::Arc::new(u16_values());
+    let (ptr, len) = (owner.as_ptr(), owner.len());
+    let held = std::sync::Arc::clone(&owner);
+    // SAFETY: `held` keeps the vector's buffer alive and nothing writes to it.
+    let voxels = unsafe { super::Voxels::borrowed(held, ptr, len) };
+    assert_eq!(voxels.as_slice().as_ptr(), ptr, "no copy");
+    assert!(!voxels.is_mapped());
+    assert_eq!(std::sync::Arc::strong_count(&owner), 2);
+    let v = Volume::new([5, 4, 3], [1.0; 3], VoxelData::U16(voxels), "borrowed").unwrap();
+    assert_eq!(std::sync::Arc::strong_count(&owner), 2);
+    assert_eq!(v.value(1, 2, 1), owner[v.index(1, 2, 1)] as f32);
+    drop(v);
+    assert_eq!(
+        std::sync::Arc::strong_count(&owner),
+        1,
+        "the owner is let go"
+    );
+}
