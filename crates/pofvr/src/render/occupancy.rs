@@ -1,7 +1,8 @@
-//! The occupancy hierarchy the march engine skips empty space with: per 4³ trilinear cells,
-//! the value range of the voxels their samples interpolate from (built once per volume),
-//! and, per weights, which of those cells — and which 32³ blocks of them — can hold a
-//! sample of nonzero opacity.
+//! The occupancy the march engine skips empty space with: per 4³ trilinear cells, the value
+//! range of the voxels their samples interpolate from (built once per volume), and, per
+//! weights, which of those cells can hold a sample of nonzero opacity, with each cell's
+//! chessboard distance to the nearest cell of the other kind (so that a ray can leap over
+//! a whole cube of empty cells, or march through a cube of occupied ones, at one lookup).
 //!
 //! A sample at index position `x` interpolates the eight corners of trilinear cell
 //! `i = min(⌊x⌋, dims − 2)` per axis (the sampler's clamp), so the voxels `i` and `i + 1`.
@@ -23,10 +24,11 @@ use crate::with_voxels;
 pub const CELL: usize = 4;
 /// log₂ of [`CELL`].
 pub(crate) const CELL_SHIFT: u32 = 2;
-/// Occupancy cells per block (the brick level of the hierarchy) along each axis.
-pub const BLOCK: usize = 8;
-/// log₂ of [`CELL`] · [`BLOCK`]: trilinear cells to blocks.
-pub(crate) const BLOCK_SHIFT: u32 = 5;
+/// The largest chessboard distance kept for an empty cell: a leap crosses at most
+/// `2·EMPTY_CAP − 1` cells along an axis. Each unit costs one pass of the rebuild.
+const EMPTY_CAP: u8 = 8;
+/// The bit of [`Occupancy::leap`] that marks an occupied cell.
+pub(crate) const OCCUPIED: u8 = 0x80;
 
 /// Trilinear cells per axis of a volume of `dims` voxels: `dims − 1`, and one cell (which
 /// reads voxel 0 only) on a one-voxel axis — the sampler's `last_cell + 1`.
@@ -122,23 +124,24 @@ fn reduce_slice<T: Voxel>(
         .collect()
 }
 
-/// Which cells and blocks can hold a sample of nonzero opacity under one classification:
-/// rebuilt from [`CellRanges`] whenever the weights (or the step) change.
+/// Which cells can hold a sample of nonzero opacity under one classification, and how far
+/// each cell is from one of the other kind: rebuilt from [`CellRanges`] whenever the
+/// weights (or the step) change.
 #[derive(Clone, Debug)]
 pub struct Occupancy {
     cells: [usize; 3],
     cell: Vec<bool>,
-    blocks: [usize; 3],
-    block: Vec<bool>,
-    /// Blocks where at least half the cells are occupied: the engine marches through them
-    /// without walking their cells, whose crossings would cost more than the few empty
-    /// samples they skip (marching a sample of zero opacity changes nothing).
-    dense: Vec<bool>,
+    /// Per cell: [`OCCUPIED`] when occupied, or'ed with the chessboard distance (in cells,
+    /// at least 1, capped) to the nearest cell of the other kind; an empty cell's distance
+    /// to the nearest occupied one is capped at [`EMPTY_CAP`], an occupied cell's to the
+    /// nearest empty one at [`OCCUPIED_CAP`]. Every cell within `distance − 1` of a cell
+    /// (on every axis) is of its kind.
+    leap: Vec<u8>,
 }
 
 impl Occupancy {
     /// The occupancy of `ranges` under `cls`: a cell is occupied when some bin its widened
-    /// range falls on has nonzero opacity; a block when one of its cells is.
+    /// range falls on has nonzero opacity.
     #[must_use]
     pub fn new(ranges: &CellRanges, cls: &Classifier) -> Self {
         let view = cls.view();
@@ -162,32 +165,19 @@ impl Occupancy {
             })
             .collect();
         let cells = ranges.cells;
-        let blocks = cells.map(|n| n.div_ceil(BLOCK));
-        let n = blocks[0] * blocks[1] * blocks[2];
-        let (mut occupied, mut all) = (vec![0u32; n], vec![0u32; n]);
-        for z in 0..cells[2] {
-            for y in 0..cells[1] {
-                let row = &cell[(z * cells[1] + y) * cells[0]..][..cells[0]];
-                let b = ((z / BLOCK) * blocks[1] + y / BLOCK) * blocks[0];
-                for (x, &occ) in row.iter().enumerate() {
-                    occupied[b + x / BLOCK] += u32::from(occ);
-                    all[b + x / BLOCK] += 1;
-                }
-            }
-        }
-        let block = occupied.iter().map(|o| *o > 0).collect();
-        let dense = occupied
-            .iter()
-            .zip(&all)
-            .map(|(o, a)| 2 * o >= *a)
+        let to_occupied = chessboard(&cell, true, cells, EMPTY_CAP);
+        let leap = cell
+            .par_iter()
+            .zip(&to_occupied)
+            .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
             .collect();
-        Occupancy {
-            cells,
-            cell,
-            blocks,
-            block,
-            dense,
-        }
+        Occupancy { cells, cell, leap }
+    }
+
+    /// Occupancy cells per axis.
+    #[must_use]
+    pub(crate) fn dims(&self) -> [usize; 3] {
+        self.cells
     }
 
     /// Whether occupancy cell `c` can hold a sample of nonzero opacity.
@@ -198,25 +188,98 @@ impl Occupancy {
         self.cell[(c[2] as usize * cy + c[1] as usize) * cx + c[0] as usize]
     }
 
-    /// Whether block `b` (of [`BLOCK`]³ cells) holds an occupied cell.
+    /// The [`Occupancy::leap`] entry of the cell at linear index `i` (x fastest).
     #[inline(always)]
     #[must_use]
-    pub fn block(&self, b: [u32; 3]) -> bool {
-        let [bx, by, _] = self.blocks;
-        self.block[(b[2] as usize * by + b[1] as usize) * bx + b[0] as usize]
-    }
-
-    /// Whether block `b` is occupied and dense (see the field).
-    #[inline(always)]
-    #[must_use]
-    pub(crate) fn dense(&self, b: [u32; 3]) -> bool {
-        let [bx, by, _] = self.blocks;
-        self.dense[(b[2] as usize * by + b[1] as usize) * bx + b[0] as usize]
+    pub(crate) fn leap_at(&self, i: usize) -> u8 {
+        self.leap[i]
     }
 
     /// Occupied cells, and all cells.
     #[must_use]
     pub fn occupied_cells(&self) -> (usize, usize) {
         (self.cell.iter().filter(|c| **c).count(), self.cell.len())
+    }
+}
+
+/// Per cell of a grid of `dims`, the chessboard distance to the nearest cell whose `kind`
+/// is `seed` (0 for those cells), capped at `cap` (also where there is none).
+///
+/// After `i` rounds of `d ← min(d, 1 + min over the 3³ neighbourhood of d)` every distance
+/// up to `i` is exact, so `cap − 1` rounds give the capped transform. The neighbourhood
+/// minimum is separable (x, then y, then z, each over three), and each pass is a run of
+/// byte minima over rows and slices, which the compiler vectorises.
+pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
+    let [nx, ny, _] = dims;
+    let slice = nx * ny;
+    let mut d: Vec<u8> = kind
+        .par_iter()
+        .map(|&k| if k == seed { 0 } else { cap })
+        .collect();
+    if d.is_empty() {
+        return d;
+    }
+    let mut m = vec![0u8; d.len()];
+    for _ in 1..cap {
+        // x then y, within each slice.
+        m.par_chunks_mut(slice)
+            .zip(d.par_chunks(slice))
+            .for_each(|(out, inp)| {
+                let mut row = vec![0u8; nx];
+                for (o, i) in out.chunks_exact_mut(nx).zip(inp.chunks_exact(nx)) {
+                    min3_row(i, &mut row);
+                    o.copy_from_slice(&row);
+                }
+                let rows: Vec<u8> = out.to_vec();
+                for y in 0..ny {
+                    let o = &mut out[y * nx..][..nx];
+                    for r in [y.wrapping_sub(1), y + 1] {
+                        if r < ny {
+                            min_into(o, &rows[r * nx..][..nx]);
+                        }
+                    }
+                }
+            });
+        // z, and the round's update.
+        let changed: bool = d
+            .par_chunks_mut(slice)
+            .enumerate()
+            .map(|(z, out)| {
+                let mut nb: Vec<u8> = m[z * slice..][..slice].to_vec();
+                for r in [z.checked_sub(1), Some(z + 1)].into_iter().flatten() {
+                    if let Some(s) = m.get(r * slice..(r + 1) * slice) {
+                        min_into(&mut nb, s);
+                    }
+                }
+                let mut changed = false;
+                for (o, n) in out.iter_mut().zip(&nb) {
+                    let v = (*o).min(n.saturating_add(1));
+                    changed |= v != *o;
+                    *o = v;
+                }
+                changed
+            })
+            .reduce(|| false, |a, b| a | b);
+        if !changed {
+            break;
+        }
+    }
+    d
+}
+
+/// `out[x] = min(row[x − 1], row[x], row[x + 1])`, over the neighbours that exist.
+fn min3_row(row: &[u8], out: &mut [u8]) {
+    out.copy_from_slice(row);
+    let n = row.len();
+    if n > 1 {
+        min_into(&mut out[..n - 1], &row[1..]);
+        min_into(&mut out[1..], &row[..n - 1]);
+    }
+}
+
+/// `a[i] = min(a[i], b[i])`.
+fn min_into(a: &mut [u8], b: &[u8]) {
+    for (x, y) in a.iter_mut().zip(b) {
+        *x = (*x).min(*y);
     }
 }
