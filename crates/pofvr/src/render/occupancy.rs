@@ -205,10 +205,11 @@ impl Occupancy {
 /// Per cell of a grid of `dims`, the chessboard distance to the nearest cell whose `kind`
 /// is `seed` (0 for those cells), capped at `cap` (also where there is none).
 ///
-/// After `i` rounds of `d ← min(d, 1 + min over the 3³ neighbourhood of d)` every distance
-/// up to `i` is exact, so `cap − 1` rounds give the capped transform. The neighbourhood
-/// minimum is separable (x, then y, then z, each over three), and each pass is a run of
-/// byte minima over rows and slices, which the compiler vectorises.
+/// The distance is `min` over seeds of `max(|Δx|, |Δy|, |Δz|)`, and as `max(a, ·)` is
+/// monotone the minimum separates: along x, `d(x) = min_j max(|j|, s(x + j))` from the seed
+/// indicator (0 or `cap`), then the same along y of that, then along z. Capped, the window
+/// is `|j| < cap`; each pass is `2·(cap − 1)` runs of byte minima and maxima over shifted
+/// rows or slices, which the compiler vectorises.
 pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
     let [nx, ny, _] = dims;
     let slice = nx * ny;
@@ -216,70 +217,46 @@ pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -
         .par_iter()
         .map(|&k| if k == seed { 0 } else { cap })
         .collect();
-    if d.is_empty() {
+    let w = usize::from(cap.saturating_sub(1));
+    if d.is_empty() || w == 0 {
         return d;
     }
-    let mut m = vec![0u8; d.len()];
-    for _ in 1..cap {
-        // x then y, within each slice.
-        m.par_chunks_mut(slice)
-            .zip(d.par_chunks(slice))
-            .for_each(|(out, inp)| {
-                let mut row = vec![0u8; nx];
-                for (o, i) in out.chunks_exact_mut(nx).zip(inp.chunks_exact(nx)) {
-                    min3_row(i, &mut row);
-                    o.copy_from_slice(&row);
-                }
-                let rows: Vec<u8> = out.to_vec();
-                for y in 0..ny {
-                    let o = &mut out[y * nx..][..nx];
-                    for r in [y.wrapping_sub(1), y + 1] {
-                        if r < ny {
-                            min_into(o, &rows[r * nx..][..nx]);
-                        }
-                    }
-                }
-            });
-        // z, and the round's update.
-        let changed: bool = d
-            .par_chunks_mut(slice)
-            .enumerate()
-            .map(|(z, out)| {
-                let mut nb: Vec<u8> = m[z * slice..][..slice].to_vec();
-                for r in [z.checked_sub(1), Some(z + 1)].into_iter().flatten() {
-                    if let Some(s) = m.get(r * slice..(r + 1) * slice) {
-                        min_into(&mut nb, s);
-                    }
-                }
-                let mut changed = false;
-                for (o, n) in out.iter_mut().zip(&nb) {
-                    let v = (*o).min(n.saturating_add(1));
-                    changed |= v != *o;
-                    *o = v;
-                }
-                changed
-            })
-            .reduce(|| false, |a, b| a | b);
-        if !changed {
-            break;
+    // x, then y, within each slice.
+    d.par_chunks_mut(slice).for_each(|s| {
+        let mut src = s.to_vec();
+        for (out, row) in s.chunks_exact_mut(nx).zip(src.chunks_exact(nx)) {
+            for j in 1..=w.min(nx - 1) {
+                let n = nx - j;
+                min_max_into(&mut out[..n], &row[j..], j as u8);
+                min_max_into(&mut out[j..], &row[..n], j as u8);
+            }
         }
-    }
+        src.copy_from_slice(s);
+        for j in 1..=w.min(ny - 1) {
+            let n = (ny - j) * nx;
+            min_max_into(&mut s[..n], &src[j * nx..], j as u8);
+            min_max_into(&mut s[j * nx..], &src[..n], j as u8);
+        }
+    });
+    // z, across slices.
+    let src = d.clone();
+    let nz = d.len() / slice;
+    d.par_chunks_mut(slice).enumerate().for_each(|(z, out)| {
+        for j in 1..=w.min(nz - 1) {
+            for zz in [z.checked_sub(j), Some(z + j).filter(|&zz| zz < nz)]
+                .into_iter()
+                .flatten()
+            {
+                min_max_into(out, &src[zz * slice..][..slice], j as u8);
+            }
+        }
+    });
     d
 }
 
-/// `out[x] = min(row[x − 1], row[x], row[x + 1])`, over the neighbours that exist.
-fn min3_row(row: &[u8], out: &mut [u8]) {
-    out.copy_from_slice(row);
-    let n = row.len();
-    if n > 1 {
-        min_into(&mut out[..n - 1], &row[1..]);
-        min_into(&mut out[1..], &row[..n - 1]);
-    }
-}
-
-/// `a[i] = min(a[i], b[i])`.
-fn min_into(a: &mut [u8], b: &[u8]) {
+/// `a[i] = min(a[i], max(b[i], j))`.
+fn min_max_into(a: &mut [u8], b: &[u8], j: u8) {
     for (x, y) in a.iter_mut().zip(b) {
-        *x = (*x).min(*y);
+        *x = (*x).min((*y).max(j));
     }
 }
