@@ -14,6 +14,8 @@
 //! opacity holds only samples of zero opacity, and the engine may skip them without
 //! changing a bit of the image.
 
+use std::sync::{Arc, Mutex};
+
 use rayon::prelude::*;
 
 use super::transfer_function::{Classifier, BIN_MAX, TF_BINS};
@@ -38,12 +40,45 @@ fn trilinear_cells(dims: [usize; 3]) -> [usize; 3] {
 
 /// The value range of every occupancy cell's voxels (see the [module](self)): what the
 /// per-weights occupancy is rebuilt from. Built once per volume.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct CellRanges {
     /// Occupancy cells per axis.
     cells: [usize; 3],
     /// `[min, max]` per cell, x fastest.
     range: Vec<[f32; 2]>,
+    /// The occupancy last built by [`CellRanges::occupancy`], with what it depends on: a
+    /// viewer's frames while the camera moves keep their weights, and need no rebuild.
+    last: Mutex<Option<(OccupancyKey, Arc<Occupancy>)>>,
+}
+
+impl Clone for CellRanges {
+    fn clone(&self) -> Self {
+        CellRanges {
+            cells: self.cells,
+            range: self.range.clone(),
+            last: Mutex::new(None),
+        }
+    }
+}
+
+/// All of a classification that its [`Occupancy`] depends on: the value-to-bin map and
+/// which bins have nonzero opacity.
+#[derive(Debug, PartialEq)]
+struct OccupancyKey {
+    lo: u32,
+    scale: u32,
+    opaque: Vec<bool>,
+}
+
+impl OccupancyKey {
+    fn of(cls: &Classifier) -> Self {
+        let v = cls.view();
+        OccupancyKey {
+            lo: v.lo.to_bits(),
+            scale: v.scale.to_bits(),
+            opaque: v.rgba.iter().map(|s| s[3] != 0.0).collect(),
+        }
+    }
 }
 
 /// `[min, max]` of `it`.
@@ -81,7 +116,30 @@ impl CellRanges {
                     *o = min_max(span(z, slices.len()).map(|s| slices[s][i]));
                 }
             });
-        CellRanges { cells, range }
+        CellRanges {
+            cells,
+            range,
+            last: Mutex::new(None),
+        }
+    }
+
+    /// The occupancy under `cls` ([`Occupancy::new`]), reused while the classification's
+    /// opaque bins stay the same.
+    #[must_use]
+    pub fn occupancy(&self, cls: &Classifier) -> Arc<Occupancy> {
+        let key = OccupancyKey::of(cls);
+        let mut last = self
+            .last
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((k, occ)) = last.as_ref() {
+            if *k == key {
+                return Arc::clone(occ);
+            }
+        }
+        let occ = Arc::new(Occupancy::new(self, cls));
+        *last = Some((key, Arc::clone(&occ)));
+        occ
     }
 
     /// Occupancy cells per axis.

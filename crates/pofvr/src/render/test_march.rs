@@ -285,3 +285,25 @@ fn chessboard_distances_match_brute_force() {
         }
     }
 }
+
+#[test]
+fn occupancy_is_reused_while_the_opaque_bins_stay_and_rebuilt_when_they_change() {
+    let head = Phantom::SheppLogan.generate(24);
+    let ranges = CellRanges::new(&head);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let grid = BrickGrid::from_volume(&head, 8).unwrap();
+    let s = SampledTf::new(&tf, grid.value_range());
+    let (both, skin) = (s.classify(&[1.0, 1.0], 1.0), s.classify(&[1.0, 0.0], 1.0));
+    let a = ranges.occupancy(&both);
+    assert!(std::sync::Arc::ptr_eq(&a, &ranges.occupancy(&both)));
+    let b = ranges.occupancy(&skin);
+    assert!(!std::sync::Arc::ptr_eq(&a, &b));
+    assert_eq!(
+        b.occupied_cells(),
+        Occupancy::new(&ranges, &skin).occupied_cells()
+    );
+    assert_eq!(
+        ranges.occupancy(&both).occupied_cells(),
+        Occupancy::new(&ranges, &both).occupied_cells()
+    );
+}
