@@ -604,10 +604,12 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
                 "samples_over_minimum",
                 "max_abs_diff_vs_whole",
                 "vtk_over_pofvr",
+                "samples_per_s_per_core",
             ] {
                 assert!(e.get(k).is_some(), "engine lacks {k}: {e}");
             }
             assert!(e["vtk_over_pofvr"].is_null());
+            assert!(e["samples_per_s_per_core"].as_f64().unwrap() > 0.0, "{e}");
             // No engine takes fewer samples than the minimum.
             assert!(e["samples_per_ray"].as_f64().unwrap() >= min, "{e}");
         }

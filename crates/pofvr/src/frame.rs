@@ -17,8 +17,8 @@ use crate::distribute::{BrickAssignment, Curve, DistributeError};
 use crate::error::{OutOfRange, Setting, Value};
 use crate::pof::{PofError, PofTable};
 use crate::render::{
-    Camera, CellRanges, Image, IndexRay, Occupancy, RayCaster, RayStats, RenderSettings, SampledTf,
-    TfError, TransferFunction,
+    Camera, CellRanges, Image, IndexRay, RayCaster, RayStats, RenderSettings, SampledTf, TfError,
+    TransferFunction,
 };
 use crate::volume::Volume;
 
@@ -487,7 +487,8 @@ pub(crate) fn reference_with(
 }
 
 /// Renders the whole volume with the march engine, the reference's image bit for bit:
-/// the occupancy of `cells` is rebuilt for `look`'s weights (timed inside the frame).
+/// the occupancy of `cells` is rebuilt for `look`'s weights when they changed (timed
+/// inside the frame).
 pub(crate) fn march_with(
     job: &RenderJob,
     look: Look<'_>,
@@ -496,7 +497,7 @@ pub(crate) fn march_with(
 ) -> (Image, FrameStats) {
     let start = Instant::now();
     let cls = job.sampled.classify(look.weights, job.settings.step);
-    let occ = Occupancy::new(cells, &cls);
+    let occ = cells.occupancy(&cls);
     let occupancy_ms = start.elapsed().as_secs_f64() * 1e3;
     let settings = RenderSettings {
         shade: look.shade,

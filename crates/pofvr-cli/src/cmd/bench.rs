@@ -123,7 +123,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
     let threads = rayon::current_num_threads();
     println!("{w}x{h}, {threads} threads (pofvr and VTK), orthographic; medians");
     println!(
-        "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8}",
+        "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8} {:>12}",
         "volume",
         "view",
         "shade",
@@ -134,13 +134,14 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
         "samp/ray",
         "min",
         "x min",
-        "PSNR dB"
+        "PSNR dB",
+        "Msamp/s/core"
     );
     let opt = |x: Option<f64>, p: usize| x.map_or_else(|| "-".to_owned(), |v| format!("{v:.p$}"));
     for c in &cases {
         for e in &c.engines {
             println!(
-                "{:<28} {:>9} {:>5} {:>8} {:>9.1} {:>9} {:>10} {:>10.1} {:>8.1} {:>8.2} {:>8}",
+                "{:<28} {:>9} {:>5} {:>8} {:>9.1} {:>9} {:>10} {:>10.1} {:>8.1} {:>8.2} {:>8} {:>12.1}",
                 short(&c.volume, 28),
                 format!("{},{}", c.view[0], c.view[1]),
                 if c.shade { "on" } else { "off" },
@@ -152,6 +153,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
                 c.min_samples_per_ray,
                 e.samples_over_minimum,
                 opt(c.vtk.psnr_db, 1),
+                e.samples_per_s_per_core * 1e-6,
             );
         }
     }

@@ -1,20 +1,22 @@
 //! The march engine: every pixel's ray walks the one sample lattice front to back across
-//! the whole volume, as the reference [`RayCaster::render`] does, but jumps over the runs of
-//! samples that lie in empty space ([`Occupancy`]: 32³ blocks, then 4³ cells), and stops
-//! once its own opacity reaches the termination threshold.
+//! the whole volume, as the reference [`RayCaster::render`] does, but leaps over the runs
+//! of samples that lie in empty space ([`Occupancy`]: 4³ cells and each empty cell's
+//! chessboard distance to an occupied one), and stops once its own opacity reaches the
+//! termination threshold.
 //!
-//! The jumps are exact, not geometric estimates. A sample's position along each axis,
+//! The leaps are exact, not geometric estimates. A sample's position along each axis,
 //! `o + (k·step)·d` in f32, is monotone in the lattice index `k` (every float operation in
-//! it is monotone), and so is its trilinear cell (the sampler's clamp and floor). So along
-//! each axis the samples of one cell form one run of consecutive `k`, and the first `k` of
-//! the next run is found by evaluating that very expression: a float estimate from the
-//! plane crossing, settled by a galloping search. The runs the walk marches are therefore
-//! exactly the samples whose cells are occupied, every skipped sample classifies to zero
-//! opacity (which composites to nothing), and the samples marched go through the same
-//! sample loops ([`super::arch::march`], AVX2 or SSE2, scalar when shading) with the same
-//! accumulator: the image equals the reference bit for bit. Marching a sample of zero
-//! opacity changes nothing either, so blocks whose cells are mostly occupied are marched
-//! through whole, without walking their cells.
+//! it is monotone), and so is its trilinear cell (the sampler's clamp and floor). An empty
+//! cell at distance `D` from every occupied one is the centre of a cube of `2D − 1` empty
+//! cells per axis; the walk estimates in float where the ray leaves that cube, and leaps
+//! only once the last sample of the leap is found, by the sampler's own cell, inside the
+//! cube: then every sample between is inside too, and classifies to zero opacity, which
+//! composites to nothing. Everything else goes, in order and with the same accumulator,
+//! through the same sample loops ([`super::arch::march`], AVX2 or SSE2, scalar on request),
+//! so the image equals the reference bit for bit. Marching a sample of zero opacity changes
+//! nothing either, so the walk marches through occupied cells, and the empty cells next to
+//! them, in chunks of samples without looking at each cell: the estimates cost a cell
+//! lookup and a few float operations per leap, and the exact test two sample cells.
 
 use rayon::prelude::*;
 
@@ -22,7 +24,7 @@ use super::arch::Gather;
 use super::camera::Camera;
 use super::image::Image;
 use super::lattice::{sample_range, IndexRay};
-use super::occupancy::{Occupancy, BLOCK_SHIFT, CELL_SHIFT};
+use super::occupancy::{Occupancy, CELL_SHIFT, OCCUPIED};
 use super::ray_caster::{RayCaster, RayStats};
 use super::sampler::TrilinearSampler;
 use crate::with_voxels;
@@ -31,9 +33,21 @@ use crate::with_voxels;
 const TILE_ROWS: usize = 8;
 /// Columns of the pixel tiles a band is traversed in, as the reference.
 const TILE_COLS: usize = 8;
-/// The longest occupied run marched before the ray's opacity is checked again: past that,
-/// walking on through occupied cells would be wasted on a ray about to terminate.
+/// The longest run of samples gathered for the sample loop before it is marched and the
+/// ray's opacity checked: past that, walking on through occupied cells would be wasted on
+/// a ray about to terminate.
 const RUN_MAX: i32 = 64;
+/// The samples the walk moves on by in an occupied cell, or in an empty one next to an
+/// occupied one, before it looks at the occupancy again: the sample loop takes such
+/// samples for less than a cell lookup per few samples would cost.
+const CHUNK: i32 = 16;
+/// The least chessboard distance to an occupied cell at which an empty cell is leapt
+/// over, with the cube of empty cells around it; closer to occupied ones, leaps are too
+/// short to pay for themselves.
+const LEAP_MIN: i32 = 2;
+/// The shortest run of empty samples worth a skip: a shorter one costs more in the split of
+/// the sample loop than marching its samples of zero opacity does.
+const MIN_SKIP: i32 = 2;
 
 /// What a march frame took: the rays and samples, and the samples jumped over.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -61,9 +75,6 @@ struct Axis {
     max: f32,
     /// The last trilinear cell.
     last: f32,
-    /// `1 / (d·step)`: lattice indices per unit of index space along this axis, for the
-    /// estimate of a plane crossing (the search settles it exactly).
-    per_unit: f64,
 }
 
 impl Axis {
@@ -76,73 +87,12 @@ impl Axis {
         // SAFETY: c is finite and in [0, last] (rays and positions are finite).
         unsafe { c.to_int_unchecked::<u32>() }
     }
-
-    /// The first sample after `k` (and before `end`; `end` when none) whose cell `>> shift`
-    /// differs from sample `k`'s, which is `b`.
-    #[inline(always)]
-    fn next(&self, k: i32, end: i32, shift: u32, b: u32) -> i32 {
-        if self.d == 0.0 || k + 1 >= end {
-            return end;
-        }
-        // The plane the ray leaves the cell by, in index space.
-        let plane = if self.d > 0.0 {
-            let p = (b + 1) << shift;
-            if p as f32 > self.last {
-                return end;
-            }
-            p
-        } else {
-            if b == 0 {
-                return end;
-            }
-            b << shift
-        };
-        // Truncated, plus one: a ceiling for the estimate without a libm call.
-        let guess = (f64::from(plane) - f64::from(self.o)) * self.per_unit;
-        let guess = (guess.clamp(f64::from(k), f64::from(end - 1)) as i32 + 1).clamp(k + 1, end);
-        first_true(k, end, guess, |j| self.cell(j) >> shift != b)
-    }
 }
 
-/// The least `j` in `(lo, hi)` with `pred(j)`, `hi` when none, for `pred` false at `lo` and
-/// monotone on `(lo, hi)`: gallops from `guess`, then bisects.
+/// The trilinear cell of sample `k` on every axis.
 #[inline(always)]
-fn first_true(mut lo: i32, mut hi: i32, guess: i32, pred: impl Fn(i32) -> bool) -> i32 {
-    if guess < hi {
-        if pred(guess) {
-            hi = guess;
-            let mut s = 1;
-            while hi - s > lo {
-                if pred(hi - s) {
-                    hi -= s;
-                    s *= 2;
-                } else {
-                    lo = hi - s;
-                    break;
-                }
-            }
-        } else {
-            lo = guess;
-            let mut s = 1;
-            while lo + s < hi {
-                if pred(lo + s) {
-                    hi = lo + s;
-                    break;
-                }
-                lo += s;
-                s *= 2;
-            }
-        }
-    }
-    while hi - lo > 1 {
-        let m = lo + (hi - lo) / 2;
-        if pred(m) {
-            hi = m;
-        } else {
-            lo = m;
-        }
-    }
-    hi
+fn cell3(axes: &[Axis; 3], k: i32) -> [u32; 3] {
+    [axes[0].cell(k), axes[1].cell(k), axes[2].cell(k)]
 }
 
 impl RayCaster<'_> {
@@ -186,8 +136,13 @@ impl RayCaster<'_> {
         (image, stats)
     }
 
-    /// Walks samples `k0..k1` of `ray` through the occupancy cells, marching the occupied
-    /// runs into `acc`.
+    /// Walks samples `k0..k1` of `ray` through the cells of `occ`, from sample to sample:
+    /// at sample `k`, its cell (the sampler's own) and that cell's [`Occupancy::leap_at`]
+    /// give a cube of cells of one kind around it, and the walk goes on from the first
+    /// sample estimated past the cube. Samples in cubes of empty cells are skipped once the
+    /// last of them is found, by its own cell, inside the cube (every axis's cell is
+    /// monotone in `k`, so then all of them are); everything else is marched into `acc`, in
+    /// order, in as few calls of the sample loop as the skips allow.
     fn walk<T: Gather>(
         &self,
         tri: &TrilinearSampler<'_, T>,
@@ -199,96 +154,88 @@ impl RayCaster<'_> {
     ) {
         let ert = self.settings().ert;
         let step = self.settings().step;
+        let inv_step = 1.0 / step;
         let axes: [Axis; 3] = std::array::from_fn(|a| Axis {
             o: ray.o[a],
             d: ray.d[a],
             step,
             max: tri.max[a],
             last: tri.last_cell[a] as f32,
-            per_unit: 1.0 / (f64::from(ray.d[a]) * f64::from(step)),
         });
-        let mut k = k0;
-        // Per axis: the sample's occupancy cell, and the first sample in the next one.
-        let mut cell = [0u32; 3];
-        let mut next = [k1; 3];
-        let enter = |k: i32, cell: &mut [u32; 3], next: &mut [i32; 3]| {
-            for a in 0..3 {
-                cell[a] = axes[a].cell(k) >> CELL_SHIFT;
-                next[a] = axes[a].next(k, k1, CELL_SHIFT, cell[a]);
+        let inv: [f32; 3] = ray.d.map(|d| if d == 0.0 { 0.0 } else { 1.0 / d });
+        let n = occ.dims().map(|n| n as i32);
+        // The `t` at which the ray leaves the cells `lo..=hi` along axis `a`; infinite
+        // where it would leave the grid (clamped samples stay in its last cell). Only an
+        // estimate: skips verify their last sample.
+        let leave = |a: usize, lo: i32, hi: i32| -> f32 {
+            let d = axes[a].d;
+            if d > 0.0 && hi < n[a] - 1 {
+                (((hi + 1) << CELL_SHIFT) as f32 - axes[a].o) * inv[a]
+            } else if d < 0.0 && lo > 0 {
+                ((lo << CELL_SHIFT) as f32 - axes[a].o) * inv[a]
+            } else {
+                f32::INFINITY
             }
         };
-        enter(k, &mut cell, &mut next);
-        // The occupied run being gathered: samples run..k.
-        let mut run: Option<i32> = None;
         let march = |from: i32, to: i32, acc: &mut [f32; 4], st: &mut MarchStats| {
             st.rays.samples += self.march(tri, ray, (from, to), acc);
             acc[3] >= ert
         };
+        let in_cube = |c: [u32; 3], lo: &[i32; 3], hi: &[i32; 3]| {
+            (0..3).all(|a| {
+                let x = (c[a] >> CELL_SHIFT) as i32;
+                lo[a] <= x && x <= hi[a]
+            })
+        };
+        // The first sample neither marched nor skipped: samples `pend..k` are marched
+        // before any skip past them.
+        let mut pend = k0;
+        let mut k = k0;
         while k < k1 {
-            let shift = BLOCK_SHIFT - CELL_SHIFT;
-            if !occ.block(cell.map(|c| c >> shift)) {
-                if let Some(r) = run.take() {
-                    if march(r, k, acc, st) {
-                        return;
+            let c = cell3(&axes, k).map(|x| (x >> CELL_SHIFT) as i32);
+            let leap = occ.leap_at(((c[2] * n[1] + c[1]) * n[0] + c[0]) as usize);
+            let mut kb;
+            if leap & OCCUPIED == 0 && i32::from(leap) >= LEAP_MIN {
+                let r = i32::from(leap) - 1;
+                let lo = c.map(|x| (x - r).max(0));
+                let hi: [i32; 3] = std::array::from_fn(|a| (c[a] + r).min(n[a] - 1));
+                let te = leave(0, lo[0], hi[0])
+                    .min(leave(1, lo[1], hi[1]))
+                    .min(leave(2, lo[2], hi[2]));
+                // The first sample at or past `te` (an estimate), and at least the next one.
+                let q = (te * inv_step).min(k1 as f32);
+                let kq = q as i32;
+                kb = (kq + i32::from((kq as f32) < q)).clamp(k + 1, k1);
+                // Samples `k..kb` are skipped once their last is in the cube (`k` is),
+                // settled by one sample where a rounding put the estimate past a face.
+                if !in_cube(cell3(&axes, kb - 1), &lo, &hi) {
+                    kb -= 1;
+                    if !in_cube(cell3(&axes, kb - 1), &lo, &hi) {
+                        kb = k + 1;
                     }
                 }
-                // Jump to the first sample in another block.
-                let to = (0..3)
-                    .map(|a| axes[a].next(k, k1, BLOCK_SHIFT, cell[a] >> shift))
-                    .min()
-                    .unwrap_or(k1);
-                st.skipped_samples += (to - k) as u64;
-                k = to;
-                if k < k1 {
-                    enter(k, &mut cell, &mut next);
-                }
-                continue;
-            }
-            let b = cell.map(|c| c >> shift);
-            let dense = occ.dense(b);
-            let to = if dense {
-                // Through the whole block: the first sample in another.
-                (0..3)
-                    .map(|a| axes[a].next(k, k1, BLOCK_SHIFT, b[a]))
-                    .min()
-                    .unwrap_or(k1)
-            } else {
-                next[0].min(next[1]).min(next[2])
-            };
-            if dense || occ.cell(cell) {
-                let r = *run.get_or_insert(k);
-                if to - r >= RUN_MAX {
-                    run = None;
-                    if march(r, to, acc, st) {
+                if kb - k >= MIN_SKIP {
+                    if k > pend && march(pend, k, acc, st) {
                         return;
                     }
+                    st.skipped_samples += (kb - k) as u64;
+                    pend = kb;
                 }
             } else {
-                if let Some(r) = run.take() {
-                    if march(r, k, acc, st) {
+                kb = (k + CHUNK).min(k1);
+                if kb - pend >= RUN_MAX {
+                    // A long occupied stretch is marched before walking on: the ray may
+                    // terminate in it.
+                    if march(pend, kb, acc, st) {
                         return;
                     }
-                }
-                st.skipped_samples += (to - k) as u64;
-            }
-            k = to;
-            if dense {
-                if k < k1 {
-                    enter(k, &mut cell, &mut next);
-                }
-                continue;
-            }
-            if k < k1 {
-                for a in 0..3 {
-                    if next[a] == k {
-                        cell[a] = axes[a].cell(k) >> CELL_SHIFT;
-                        next[a] = axes[a].next(k, k1, CELL_SHIFT, cell[a]);
-                    }
+                    pend = kb;
                 }
             }
+            k = kb;
         }
-        if let Some(r) = run {
-            march(r, k1, acc, st);
+        if pend < k1 {
+            march(pend, k1, acc, st);
         }
     }
 }

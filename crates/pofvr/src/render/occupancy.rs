@@ -1,7 +1,8 @@
-//! The occupancy hierarchy the march engine skips empty space with: per 4³ trilinear cells,
-//! the value range of the voxels their samples interpolate from (built once per volume),
-//! and, per weights, which of those cells — and which 32³ blocks of them — can hold a
-//! sample of nonzero opacity.
+//! The occupancy the march engine skips empty space with: per 4³ trilinear cells, the value
+//! range of the voxels their samples interpolate from (built once per volume), and, per
+//! weights, which of those cells can hold a sample of nonzero opacity, with each cell's
+//! chessboard distance to the nearest cell of the other kind (so that a ray can leap over
+//! a whole cube of empty cells, or march through a cube of occupied ones, at one lookup).
 //!
 //! A sample at index position `x` interpolates the eight corners of trilinear cell
 //! `i = min(⌊x⌋, dims − 2)` per axis (the sampler's clamp), so the voxels `i` and `i + 1`.
@@ -13,6 +14,8 @@
 //! opacity holds only samples of zero opacity, and the engine may skip them without
 //! changing a bit of the image.
 
+use std::sync::{Arc, Mutex};
+
 use rayon::prelude::*;
 
 use super::transfer_function::{Classifier, BIN_MAX, TF_BINS};
@@ -23,10 +26,11 @@ use crate::with_voxels;
 pub const CELL: usize = 4;
 /// log₂ of [`CELL`].
 pub(crate) const CELL_SHIFT: u32 = 2;
-/// Occupancy cells per block (the brick level of the hierarchy) along each axis.
-pub const BLOCK: usize = 8;
-/// log₂ of [`CELL`] · [`BLOCK`]: trilinear cells to blocks.
-pub(crate) const BLOCK_SHIFT: u32 = 5;
+/// The largest chessboard distance kept for an empty cell: a leap crosses at most
+/// `2·EMPTY_CAP − 1` cells along an axis. Each unit costs one pass of the rebuild.
+const EMPTY_CAP: u8 = 8;
+/// The bit of [`Occupancy::leap`] that marks an occupied cell.
+pub(crate) const OCCUPIED: u8 = 0x80;
 
 /// Trilinear cells per axis of a volume of `dims` voxels: `dims − 1`, and one cell (which
 /// reads voxel 0 only) on a one-voxel axis — the sampler's `last_cell + 1`.
@@ -36,12 +40,45 @@ fn trilinear_cells(dims: [usize; 3]) -> [usize; 3] {
 
 /// The value range of every occupancy cell's voxels (see the [module](self)): what the
 /// per-weights occupancy is rebuilt from. Built once per volume.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct CellRanges {
     /// Occupancy cells per axis.
     cells: [usize; 3],
     /// `[min, max]` per cell, x fastest.
     range: Vec<[f32; 2]>,
+    /// The occupancy last built by [`CellRanges::occupancy`], with what it depends on: a
+    /// viewer's frames while the camera moves keep their weights, and need no rebuild.
+    last: Mutex<Option<(OccupancyKey, Arc<Occupancy>)>>,
+}
+
+impl Clone for CellRanges {
+    fn clone(&self) -> Self {
+        CellRanges {
+            cells: self.cells,
+            range: self.range.clone(),
+            last: Mutex::new(None),
+        }
+    }
+}
+
+/// All of a classification that its [`Occupancy`] depends on: the value-to-bin map and
+/// which bins have nonzero opacity.
+#[derive(Debug, PartialEq)]
+struct OccupancyKey {
+    lo: u32,
+    scale: u32,
+    opaque: Vec<bool>,
+}
+
+impl OccupancyKey {
+    fn of(cls: &Classifier) -> Self {
+        let v = cls.view();
+        OccupancyKey {
+            lo: v.lo.to_bits(),
+            scale: v.scale.to_bits(),
+            opaque: v.rgba.iter().map(|s| s[3] != 0.0).collect(),
+        }
+    }
 }
 
 /// `[min, max]` of `it`.
@@ -79,7 +116,30 @@ impl CellRanges {
                     *o = min_max(span(z, slices.len()).map(|s| slices[s][i]));
                 }
             });
-        CellRanges { cells, range }
+        CellRanges {
+            cells,
+            range,
+            last: Mutex::new(None),
+        }
+    }
+
+    /// The occupancy under `cls` ([`Occupancy::new`]), reused while the classification's
+    /// opaque bins stay the same.
+    #[must_use]
+    pub fn occupancy(&self, cls: &Classifier) -> Arc<Occupancy> {
+        let key = OccupancyKey::of(cls);
+        let mut last = self
+            .last
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((k, occ)) = last.as_ref() {
+            if *k == key {
+                return Arc::clone(occ);
+            }
+        }
+        let occ = Arc::new(Occupancy::new(self, cls));
+        *last = Some((key, Arc::clone(&occ)));
+        occ
     }
 
     /// Occupancy cells per axis.
@@ -122,23 +182,24 @@ fn reduce_slice<T: Voxel>(
         .collect()
 }
 
-/// Which cells and blocks can hold a sample of nonzero opacity under one classification:
-/// rebuilt from [`CellRanges`] whenever the weights (or the step) change.
+/// Which cells can hold a sample of nonzero opacity under one classification, and how far
+/// each cell is from one of the other kind: rebuilt from [`CellRanges`] whenever the
+/// weights (or the step) change.
 #[derive(Clone, Debug)]
 pub struct Occupancy {
     cells: [usize; 3],
     cell: Vec<bool>,
-    blocks: [usize; 3],
-    block: Vec<bool>,
-    /// Blocks where at least half the cells are occupied: the engine marches through them
-    /// without walking their cells, whose crossings would cost more than the few empty
-    /// samples they skip (marching a sample of zero opacity changes nothing).
-    dense: Vec<bool>,
+    /// Per cell: [`OCCUPIED`] when occupied, or'ed with the chessboard distance (in cells,
+    /// at least 1, capped) to the nearest cell of the other kind; an empty cell's distance
+    /// to the nearest occupied one is capped at [`EMPTY_CAP`], an occupied cell's to the
+    /// nearest empty one at [`OCCUPIED_CAP`]. Every cell within `distance − 1` of a cell
+    /// (on every axis) is of its kind.
+    leap: Vec<u8>,
 }
 
 impl Occupancy {
     /// The occupancy of `ranges` under `cls`: a cell is occupied when some bin its widened
-    /// range falls on has nonzero opacity; a block when one of its cells is.
+    /// range falls on has nonzero opacity.
     #[must_use]
     pub fn new(ranges: &CellRanges, cls: &Classifier) -> Self {
         let view = cls.view();
@@ -162,32 +223,19 @@ impl Occupancy {
             })
             .collect();
         let cells = ranges.cells;
-        let blocks = cells.map(|n| n.div_ceil(BLOCK));
-        let n = blocks[0] * blocks[1] * blocks[2];
-        let (mut occupied, mut all) = (vec![0u32; n], vec![0u32; n]);
-        for z in 0..cells[2] {
-            for y in 0..cells[1] {
-                let row = &cell[(z * cells[1] + y) * cells[0]..][..cells[0]];
-                let b = ((z / BLOCK) * blocks[1] + y / BLOCK) * blocks[0];
-                for (x, &occ) in row.iter().enumerate() {
-                    occupied[b + x / BLOCK] += u32::from(occ);
-                    all[b + x / BLOCK] += 1;
-                }
-            }
-        }
-        let block = occupied.iter().map(|o| *o > 0).collect();
-        let dense = occupied
-            .iter()
-            .zip(&all)
-            .map(|(o, a)| 2 * o >= *a)
+        let to_occupied = chessboard(&cell, true, cells, EMPTY_CAP);
+        let leap = cell
+            .par_iter()
+            .zip(&to_occupied)
+            .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
             .collect();
-        Occupancy {
-            cells,
-            cell,
-            blocks,
-            block,
-            dense,
-        }
+        Occupancy { cells, cell, leap }
+    }
+
+    /// Occupancy cells per axis.
+    #[must_use]
+    pub(crate) fn dims(&self) -> [usize; 3] {
+        self.cells
     }
 
     /// Whether occupancy cell `c` can hold a sample of nonzero opacity.
@@ -198,25 +246,75 @@ impl Occupancy {
         self.cell[(c[2] as usize * cy + c[1] as usize) * cx + c[0] as usize]
     }
 
-    /// Whether block `b` (of [`BLOCK`]³ cells) holds an occupied cell.
+    /// The [`Occupancy::leap`] entry of the cell at linear index `i` (x fastest).
     #[inline(always)]
     #[must_use]
-    pub fn block(&self, b: [u32; 3]) -> bool {
-        let [bx, by, _] = self.blocks;
-        self.block[(b[2] as usize * by + b[1] as usize) * bx + b[0] as usize]
-    }
-
-    /// Whether block `b` is occupied and dense (see the field).
-    #[inline(always)]
-    #[must_use]
-    pub(crate) fn dense(&self, b: [u32; 3]) -> bool {
-        let [bx, by, _] = self.blocks;
-        self.dense[(b[2] as usize * by + b[1] as usize) * bx + b[0] as usize]
+    pub(crate) fn leap_at(&self, i: usize) -> u8 {
+        self.leap[i]
     }
 
     /// Occupied cells, and all cells.
     #[must_use]
     pub fn occupied_cells(&self) -> (usize, usize) {
         (self.cell.iter().filter(|c| **c).count(), self.cell.len())
+    }
+}
+
+/// Per cell of a grid of `dims`, the chessboard distance to the nearest cell whose `kind`
+/// is `seed` (0 for those cells), capped at `cap` (also where there is none).
+///
+/// The distance is `min` over seeds of `max(|Δx|, |Δy|, |Δz|)`, and as `max(a, ·)` is
+/// monotone the minimum separates: along x, `d(x) = min_j max(|j|, s(x + j))` from the seed
+/// indicator (0 or `cap`), then the same along y of that, then along z. Capped, the window
+/// is `|j| < cap`; each pass is `2·(cap − 1)` runs of byte minima and maxima over shifted
+/// rows or slices, which the compiler vectorises.
+pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
+    let [nx, ny, _] = dims;
+    let slice = nx * ny;
+    let mut d: Vec<u8> = kind
+        .par_iter()
+        .map(|&k| if k == seed { 0 } else { cap })
+        .collect();
+    let w = usize::from(cap.saturating_sub(1));
+    if d.is_empty() || w == 0 {
+        return d;
+    }
+    // x, then y, within each slice.
+    d.par_chunks_mut(slice).for_each(|s| {
+        let mut src = s.to_vec();
+        for (out, row) in s.chunks_exact_mut(nx).zip(src.chunks_exact(nx)) {
+            for j in 1..=w.min(nx - 1) {
+                let n = nx - j;
+                min_max_into(&mut out[..n], &row[j..], j as u8);
+                min_max_into(&mut out[j..], &row[..n], j as u8);
+            }
+        }
+        src.copy_from_slice(s);
+        for j in 1..=w.min(ny - 1) {
+            let n = (ny - j) * nx;
+            min_max_into(&mut s[..n], &src[j * nx..], j as u8);
+            min_max_into(&mut s[j * nx..], &src[..n], j as u8);
+        }
+    });
+    // z, across slices.
+    let src = d.clone();
+    let nz = d.len() / slice;
+    d.par_chunks_mut(slice).enumerate().for_each(|(z, out)| {
+        for j in 1..=w.min(nz - 1) {
+            for zz in [z.checked_sub(j), Some(z + j).filter(|&zz| zz < nz)]
+                .into_iter()
+                .flatten()
+            {
+                min_max_into(out, &src[zz * slice..][..slice], j as u8);
+            }
+        }
+    });
+    d
+}
+
+/// `a[i] = min(a[i], max(b[i], j))`.
+fn min_max_into(a: &mut [u8], b: &[u8], j: u8) {
+    for (x, y) in a.iter_mut().zip(b) {
+        *x = (*x).min((*y).max(j));
     }
 }

@@ -1,6 +1,8 @@
 //! The software ray caster: front-to-back emission–absorption with trilinear samples, over
 //! the whole volume or one box of it, on the one sample lattice (see [`first_sample`]).
 
+use std::sync::OnceLock;
+
 use rayon::prelude::*;
 
 use super::arch::{self, Gather, MarchParams};
@@ -64,6 +66,42 @@ pub struct RayCaster<'a> {
     settings: RenderSettings,
     /// What the sample loops need, AVX2 on where the CPU has it.
     params: MarchParams<'a>,
+    /// The pixel rays of the first camera a box is rendered for (see [`PixelRays`]).
+    rays: OnceLock<PixelRays>,
+}
+
+/// Every pixel's index ray for one camera, computed a row at a time when a box first needs
+/// that row, and shared by every box rendered after: a frame renders each pixel through
+/// several bricks, and the ray (a camera ray in f64, its conversion to index space with
+/// three divisions, the jitter) is the same for each, so a brick's set-up per pixel is a
+/// load rather than that computation. The rays are the very values
+/// [`RayCaster::pixel_ray`] returns, so the images do not change by a bit.
+struct PixelRays {
+    camera: Camera,
+    frame: ViewFrame,
+    rows: Vec<OnceLock<Box<[IndexRay]>>>,
+}
+
+impl PixelRays {
+    fn new(camera: &Camera, frame: &ViewFrame) -> Self {
+        PixelRays {
+            camera: camera.clone(),
+            frame: *frame,
+            rows: (0..camera.height).map(|_| OnceLock::new()).collect(),
+        }
+    }
+
+    /// Whether these are the rays of `camera` seen through `frame`.
+    fn are_for(&self, camera: &Camera, frame: &ViewFrame) -> bool {
+        // The frame is derived from the camera; compared too, as callers pass both.
+        self.camera == *camera && frame_bits(&self.frame) == frame_bits(frame)
+    }
+}
+
+/// A view frame's exact bits, for comparing frames.
+fn frame_bits(f: &ViewFrame) -> [u64; 9] {
+    let v = [f.forward, f.right, f.up];
+    std::array::from_fn(|i| v[i / 3][i % 3].to_bits())
 }
 
 /// Rows per parallel work item of a full-frame render.
@@ -87,6 +125,7 @@ impl<'a> RayCaster<'a> {
                 avx2: arch::avx2_available(),
                 scalar: false,
             },
+            rays: OnceLock::new(),
         }
     }
 
@@ -249,12 +288,27 @@ impl<'a> RayCaster<'a> {
     ) -> RayStats {
         let mut st = RayStats::default();
         let w = rect.width() as usize;
-        for (i, px) in out.iter_mut().enumerate() {
-            let (x, y) = (rect.x0 + (i % w) as u32, rect.y0 + (i / w) as u32);
-            let ray = self.pixel_ray(camera, frame, x, y);
-            if let Some(span) = ray.span(b) {
-                st.rays += 1;
-                st.samples += self.march(tri, &ray, sample_range(span, self.settings.step), px);
+        let rays = self.rays.get_or_init(|| PixelRays::new(camera, frame));
+        let cached = rays.are_for(camera, frame);
+        for (r, row) in out.chunks_mut(w).enumerate() {
+            let y = rect.y0 + r as u32;
+            let line = cached.then(|| {
+                rays.rows[y as usize].get_or_init(|| {
+                    (0..camera.width)
+                        .map(|x| self.pixel_ray(camera, frame, x, y))
+                        .collect()
+                })
+            });
+            for (i, px) in row.iter_mut().enumerate() {
+                let x = rect.x0 + i as u32;
+                let ray = match line {
+                    Some(line) => line[x as usize],
+                    None => self.pixel_ray(camera, frame, x, y),
+                };
+                if let Some(span) = ray.span(b) {
+                    st.rays += 1;
+                    st.samples += self.march(tri, &ray, sample_range(span, self.settings.step), px);
+                }
             }
         }
         st

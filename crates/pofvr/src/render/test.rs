@@ -619,3 +619,46 @@ fn jittered_frames_are_reproducible_differ_by_seed_and_equal_brick_by_brick() {
         );
     }
 }
+
+#[test]
+fn one_caster_renders_boxes_for_several_cameras_as_fresh_casters_do() {
+    // The caster keeps the pixel rays of the first camera it renders a box for; boxes
+    // seen by another camera (or jittered) must still get that camera's own rays.
+    let vol = Phantom::SheppLogan.generate(24);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let s = SampledTf::new(&tf, grid.value_range());
+    for jitter in [None, Some(7)] {
+        let settings = RenderSettings {
+            jitter,
+            ..RenderSettings::default()
+        };
+        let cls = s.classify(&[1.0, 1.0], settings.step);
+        let shared = RayCaster::new(&vol, &cls, settings);
+        let cams = [
+            Camera::orbit(&vol, 30.0, 20.0, 24, 20, Projection::Perspective),
+            Camera::orbit(&vol, -60.0, 10.0, 24, 20, Projection::Orthographic),
+        ];
+        for _ in 0..2 {
+            for cam in &cams {
+                let frame = cam.frame();
+                let rect = PixelRect {
+                    x0: 3,
+                    y0: 2,
+                    x1: 21,
+                    y1: 17,
+                };
+                for id in grid.ids() {
+                    let b = grid.index_box(id);
+                    let (got, st) = shared.render_box(cam, &frame, rect, &b);
+                    let fresh = RayCaster::new(&vol, &cls, settings);
+                    let (want, want_st) = fresh.render_box(cam, &frame, rect, &b);
+                    assert_eq!(st, want_st);
+                    for (g, w) in got.iter().zip(&want) {
+                        assert_eq!(g.map(f32::to_bits), w.map(f32::to_bits));
+                    }
+                }
+            }
+        }
+    }
+}

@@ -255,3 +255,55 @@ fn cell_ranges_cover_the_one_voxel_apron() {
     let maxes: Vec<f32> = (0..4).map(|x| r.range([x, 0, 0])[1]).collect();
     assert_eq!(maxes, [0.0, 200.0, 200.0, 0.0]);
 }
+
+#[test]
+fn chessboard_distances_match_brute_force() {
+    let mut rng = StdRng::seed_from_u64(16);
+    for (dims, density) in [
+        ([7, 5, 9], 0.05),
+        ([1, 12, 3], 0.2),
+        ([13, 1, 1], 0.1),
+        ([6, 6, 6], 0.0),
+    ] {
+        let n = dims[0] * dims[1] * dims[2];
+        let kind: Vec<bool> = (0..n).map(|_| rng.gen_bool(density)).collect();
+        let at = |i: usize| [i % dims[0], i / dims[0] % dims[1], i / (dims[0] * dims[1])];
+        for cap in [1u8, 3, 8] {
+            let got = super::occupancy::chessboard(&kind, true, dims, cap);
+            for (i, &d) in got.iter().enumerate() {
+                let c = at(i);
+                let want = (0..n)
+                    .filter(|&j| kind[j])
+                    .map(|j| {
+                        let o = at(j);
+                        (0..3).map(|a| c[a].abs_diff(o[a])).max().unwrap()
+                    })
+                    .min()
+                    .map_or(cap, |d| d.min(usize::from(cap)) as u8);
+                assert_eq!(d, want, "{dims:?} cap {cap} cell {c:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn occupancy_is_reused_while_the_opaque_bins_stay_and_rebuilt_when_they_change() {
+    let head = Phantom::SheppLogan.generate(24);
+    let ranges = CellRanges::new(&head);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let grid = BrickGrid::from_volume(&head, 8).unwrap();
+    let s = SampledTf::new(&tf, grid.value_range());
+    let (both, skin) = (s.classify(&[1.0, 1.0], 1.0), s.classify(&[1.0, 0.0], 1.0));
+    let a = ranges.occupancy(&both);
+    assert!(std::sync::Arc::ptr_eq(&a, &ranges.occupancy(&both)));
+    let b = ranges.occupancy(&skin);
+    assert!(!std::sync::Arc::ptr_eq(&a, &b));
+    assert_eq!(
+        b.occupied_cells(),
+        Occupancy::new(&ranges, &skin).occupied_cells()
+    );
+    assert_eq!(
+        ranges.occupancy(&both).occupied_cells(),
+        Occupancy::new(&ranges, &both).occupied_cells()
+    );
+}

@@ -80,6 +80,9 @@ pub struct EngineFrame {
     pub max_abs_diff_vs_whole: f32,
     /// VTK's frame time over this engine's, when VTK was measured.
     pub vtk_over_pofvr: Option<f64>,
+    /// Samples taken per second of the median frame and per worker thread: what one core
+    /// gets through, set-up and empty-space walk included.
+    pub samples_per_s_per_core: f64,
 }
 
 /// VTK's side of one frame: measured, or the reason it was not.
@@ -207,6 +210,9 @@ pub fn bench_frame(
                         samples_over_minimum: per_ray / min_per_ray,
                         max_abs_diff_vs_whole: diff,
                         vtk_over_pofvr: vtk.as_ref().ok().map(|v| v.median_ms / median_ms),
+                        samples_per_s_per_core: f.stats.samples as f64
+                            / (median_ms * 1e-3)
+                            / rayon::current_num_threads() as f64,
                     });
                 }
                 cases.push(FrameCase {
