@@ -172,12 +172,16 @@ impl Proxy {
                 volume.unit(),
             )
         };
-        let ends: Vec<f32> = (0..tile.area())
+        // Each pixel's ray and where it is predicted to end; rays are kept, since every
+        // brick over a pixel asks for its span along it.
+        let ends: Vec<(IndexRay, f32)> = (0..tile.area())
             .into_par_iter()
             .with_min_len(256)
             .map(|i| {
                 let (x, y) = (tile.x0 + (i % tw) as u32, tile.y0 + (i / tw) as u32);
-                self.termination(&ext, &ray_at(x, y), depth)
+                let ray = ray_at(x, y);
+                let end = self.termination(&ext, &ray, depth);
+                (ray, end)
             })
             .collect();
         let over: Vec<(BrickId, PixelRect)> = bricks
@@ -195,9 +199,11 @@ impl Proxy {
                 let ib = grid.index_box(id);
                 (rect.y0..rect.y1).all(|y| {
                     (rect.x0..rect.x1).all(|x| {
-                        let end = ends[(y - tile.y0) as usize * tw + (x - tile.x0) as usize];
+                        let (ray, end) =
+                            &ends[(y - tile.y0) as usize * tw + (x - tile.x0) as usize];
+                        let end = *end;
                         end.is_finite()
-                            && match ray_at(x, y).span(&ib) {
+                            && match ray.span(&ib) {
                                 None => true,
                                 Some((t0, t1)) => t1 <= t0 || t0 >= end,
                             }
