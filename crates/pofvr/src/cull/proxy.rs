@@ -80,15 +80,14 @@ impl Proxy {
     pub fn termination(&self, ext: &[f32], ray: &IndexRay, depth: f32) -> f32 {
         let hi = self.cells.map(|c| (c * PROXY_CELL) as f32);
         let (mut t0, mut t1) = (0f32, f32::INFINITY);
-        for a in 0..3 {
-            let d = ray.d[a];
+        for ((&o, &d), &hi) in ray.o.iter().zip(&ray.d).zip(&hi) {
             if d == 0.0 {
-                if ray.o[a] < 0.0 || ray.o[a] >= hi[a] {
+                if o < 0.0 || o >= hi {
                     return f32::INFINITY;
                 }
                 continue;
             }
-            let (ta, tb) = ((0.0 - ray.o[a]) / d, (hi[a] - ray.o[a]) / d);
+            let (ta, tb) = ((0.0 - o) / d, (hi - o) / d);
             t0 = t0.max(ta.min(tb));
             t1 = t1.min(ta.max(tb));
         }
