@@ -50,11 +50,8 @@ fn every_predictor_obeys_the_threshold_rule_on_every_real_volume() {
                     };
                     let (img, st) = render_frame(&job, bounds, &cam, &opts).unwrap();
                     let what = format!("{vol} {predictor:?} {az},{el} {p:?} {ranks} ranks");
-                    let r = pofvr::check::check_threshold_rule(
-                        &reference,
-                        &img,
-                        opts.cull_threshold,
-                    );
+                    let r =
+                        pofvr::check::check_threshold_rule(&reference, &img, opts.cull_threshold);
                     assert!(r.holds(), "{what}: {r}");
                     assert!(st.bricks.repaired <= st.bricks.visible, "{what}");
                     if predictor == Predictor::Everything {

@@ -21,6 +21,15 @@ use super::FrameBricks;
 /// 16³ brick, coarse enough that a 512-cell ray crosses a few hundred cells.
 pub const PROXY_CELL: usize = 4;
 
+/// The optical depth a ray must reach in the proxy, in multiples of the threshold's
+/// (`−ln(1 − threshold)`), before the bricks behind are predicted hidden.
+///
+/// Why more than one: a cell's mean extinction overstates what a ray crossing it meets
+/// (the mean of the transmittances exceeds the transmittance of the mean), most where
+/// opaque voxels share a cell with empty ones, at every surface; a wrong hidden guess costs
+/// a repair, a brick rendered for nothing only its ray casting.
+pub const PROXY_DEPTH_FACTOR: f32 = 3.0;
+
 /// The proxy of a volume for one family: per basis, the mean extinction of each cell's
 /// voxels. It depends on the bases, not on the weights, so a job builds it once.
 #[derive(Clone, Debug)]
@@ -162,7 +171,7 @@ impl Proxy {
         }
         let frame = camera.frame();
         let ext = self.extinction(weights);
-        let depth = -(1.0 - threshold.min(0.999_999)).ln();
+        let depth = -(1.0 - threshold.min(0.999_999)).ln() * PROXY_DEPTH_FACTOR;
         let tw = tile.width() as usize;
         let ray_at = |x: u32, y: u32| {
             IndexRay::new(
