@@ -186,10 +186,24 @@ pub(crate) struct RenderArgs {
 pub(crate) struct FrameArgs {
     /// Culling mode: none, pof (conservative POFs), pof-set (the paper's aggressive POF
     /// sets: culls more, but an estimate, not a bound: a few pixels may break the threshold
-    /// rule) or exact (the sequential oracle, to measure how close POFs get).
+    /// rule), exact (the sequential oracle, to measure how close POFs get) or verified
+    /// (predict, verify, repair: the proxy predictor, a low-resolution copy of the volume
+    /// marched per pixel, guesses; tile owners verify the guess while compositing and
+    /// render what it culled wrongly, so the threshold rule always holds; no POFs needed).
     /// > default: pof when --pof is given, otherwise none
     #[arg(long)]
     pub(crate) cull: Option<String>,
+    /// The predictor of --cull verified: proxy, pof, pof-set (both need --pof), previous
+    /// (the bricks the previous frame needed, for --frames orbits), nothing, everything or
+    /// random[:SEED] (the last three for tests).
+    /// > default: proxy
+    #[arg(long, value_name = "NAME")]
+    pub(crate) predictor: Option<String>,
+    /// Verify --cull pof or pof-set while compositing and repair what was culled wrongly
+    /// (as --cull verified --predictor pof or pof-set does): the threshold rule then holds
+    /// for pof-set too.
+    #[arg(long)]
+    pub(crate) verify: bool,
     /// Opacity at or above which a pixel hides what lies behind it.
     /// > default: 0.95
     #[arg(long, default_value_t = 0.95)]

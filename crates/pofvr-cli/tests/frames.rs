@@ -221,3 +221,107 @@ fn jitter_is_off_unless_asked_reproducible_per_seed_and_the_same_for_bricks_and_
     assert!(diff("j5-bricks.raw", "j5-ranks.raw") <= 1e-6);
     assert!(diff("j5-bricks.raw", "j5-whole.raw") <= 0.01 + 1e-6);
 }
+
+#[test]
+fn a_verified_orbit_repairs_what_its_predictor_misses_and_reports_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let common = [
+        "render",
+        "phantom:head:48",
+        "--size",
+        "48x40",
+        "--view",
+        "30,20",
+    ];
+    let o = pofvr(
+        &[
+            &common[..],
+            &["--whole", "--out", "w.png", "--out-raw", "w.raw"],
+        ]
+        .concat(),
+        d,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for predictor in ["proxy", "previous", "everything", "random:3"] {
+        let o = pofvr(
+            &[
+                &common[..],
+                &[
+                    "--cull",
+                    "verified",
+                    "--predictor",
+                    predictor,
+                    "--frames",
+                    "3",
+                    "--orbit",
+                    "0",
+                    "--ranks",
+                    "2",
+                    "--out",
+                    "v.png",
+                    "--out-raw",
+                    "v.raw",
+                    "--stats",
+                    "s.json",
+                ],
+            ]
+            .concat(),
+            d,
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let name = predictor.split(':').next().unwrap();
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains(&format!("predicted by {name}")),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let s: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join("s.json")).unwrap()).unwrap();
+        for k in 0..3 {
+            let f = &s["frames"][k];
+            assert_eq!(f["cull"], "verified", "{f}");
+            assert_eq!(f["predictor"], name, "{f}");
+            assert_eq!(f["verified"], true, "{f}");
+            assert!(f["bricks"]["repaired"].as_u64().is_some(), "{f}");
+            for r in f["ranks"].as_array().unwrap() {
+                assert!(r["verify_ms"].as_f64().is_some(), "{r}");
+                assert!(r["repair_ms"].as_f64().is_some(), "{r}");
+            }
+            // The threshold rule's bound on any pixel (0.95 by default).
+            let raw = format!("v-{k:04}.raw");
+            assert!(max_diff(&d.join(raw), &d.join("w.raw")) <= 0.05 + 1e-5);
+        }
+        let repaired = |k: usize| s["frames"][k]["bricks"]["repaired"].as_u64().unwrap();
+        match name {
+            "everything" => assert!(repaired(0) > 0),
+            // The same view again: last frame's set needs (next to) no repair.
+            "previous" => {
+                let visible = s["frames"][1]["bricks"]["visible"].as_u64().unwrap();
+                assert!(repaired(1) * 20 <= visible, "{s}");
+            }
+            _ => {}
+        }
+    }
+    // Flags that do not apply are refused.
+    for (args, what) in [
+        (
+            &["--cull", "exact", "--predictor", "proxy"][..],
+            "--predictor",
+        ),
+        (&["--cull", "none", "--verify"][..], "--verify"),
+        (
+            &["--cull", "verified", "--predictor", "bogus"][..],
+            "unknown predictor",
+        ),
+        (
+            &["--cull", "verified", "--predictor", "pof"][..],
+            "needs precomputed POFs",
+        ),
+    ] {
+        let o = pofvr(&[&common[..], args, &["--out", "x.png"]].concat(), d);
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(what), "{args:?}: {err}");
+    }
+}

@@ -416,3 +416,47 @@ fn ranks_flag_under_mpirun_is_refused() {
     );
     assert_aborts_fast(&o, took, "--ranks 3");
 }
+
+#[test]
+#[ignore = "needs MPI (mpirun)"]
+fn verified_culling_under_mpi_repairs_and_gives_the_in_process_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for predictor in ["proxy", "random:7", "everything"] {
+        let tag = predictor.replace(':', "-");
+        let args = |out: &str| -> Vec<String> {
+            let mut a: Vec<String> = render_args("hilbert", "verified", out)
+                .into_iter()
+                .map(str::to_owned)
+                .collect();
+            a.extend(["--predictor".to_owned(), predictor.to_owned()]);
+            a
+        };
+        let one = format!("local-{tag}.raw");
+        let mut local = args(&one);
+        local.extend(["--ranks".to_owned(), "1".to_owned()]);
+        let o = pofvr(&local.iter().map(String::as_str).collect::<Vec<_>>(), d);
+        assert!(o.status.success(), "{}", text(&o));
+        for np in 2..=3 {
+            let mpi = format!("mpi-{tag}-{np}.raw");
+            let stats = format!("mpi-{tag}-{np}.json");
+            let mut a = args(&mpi);
+            a.extend(["--stats".to_owned(), stats.clone()]);
+            let (o, _) = mpirun(np, &a.iter().map(String::as_str).collect::<Vec<_>>(), d);
+            assert!(o.status.success(), "{predictor} -np {np}: {}", text(&o));
+            let diff = max_diff(&d.join(&mpi), &d.join(&one));
+            assert!(diff == 0.0, "{predictor} -np {np}: max diff {diff:e}");
+            let s: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+            assert_eq!(s["predictor"], predictor.split(':').next().unwrap(), "{s}");
+            assert_each_visible_brick_rendered_once(&s);
+            let repaired = s["bricks"]["repaired"].as_u64().unwrap();
+            if predictor != "proxy" {
+                assert!(repaired > 0, "{predictor} -np {np}: nothing repaired: {s}");
+            }
+            for r in s["ranks"].as_array().unwrap() {
+                assert!(r["verify_ms"].as_f64().is_some() && r["repair_ms"].as_f64().is_some());
+            }
+        }
+    }
+}

@@ -211,6 +211,9 @@ impl From<FrameError> for Error {
     fn from(e: FrameError) -> Self {
         match e {
             FrameError::NoPofs(mode) => Error::NoPofs { mode },
+            FrameError::NoPofsPredictor(_) => Error::NoPofs {
+                mode: crate::cull::CullMode::Verified,
+            },
             FrameError::OutOfRange(r) => Error::OutOfRange(r),
             FrameError::Gather(why) => Error::Gather { why },
             FrameError::Distribute(e) => Error::Distribute(e),

@@ -12,13 +12,17 @@ use serde::Serialize;
 use crate::brick::{BrickError, BrickGrid, BrickId, BrickStore};
 use crate::comm::{CommError, Communicator, LocalCommunicator, Rank};
 use crate::composite::{CompositeError, Compositor, DirectSend, TileFragment, TileLayout};
-use crate::cull::{CoreLevels, CullMode, CullScratch, Culler, FrameBricks, OpacityBound};
+use crate::cull::predict::{bricks_over_tile, random_culls, split};
+use crate::cull::{
+    verify_tile, CoreLevels, CullMode, CullResult, CullScratch, Culler, FrameBricks, OpacityBound,
+    Predictor, Proxy, VerifyView,
+};
 use crate::distribute::{BrickAssignment, Curve, DistributeError};
 use crate::error::{OutOfRange, Setting, Value};
 use crate::pof::{PofError, PofTable};
 use crate::render::{
-    Camera, CellRanges, Image, IndexRay, RayCaster, RayStats, RenderSettings, SampledTf, TfError,
-    TransferFunction,
+    Camera, CellRanges, Image, IndexRay, PixelRect, RayCaster, RayStats, RenderSettings, SampledTf,
+    TfError, TransferFunction,
 };
 use crate::volume::Volume;
 
@@ -64,6 +68,12 @@ pub struct RenderJob {
     assignment_cache: std::sync::Mutex<Option<CachedAssignment>>,
     /// The culler's opacity buffers, kept from frame to frame.
     cull_scratch: CullScratch,
+    /// The low-resolution proxy the [`Predictor::Proxy`] marches, measured on first use
+    /// (it depends on the volume and the bases, which a job keeps).
+    proxy: std::sync::OnceLock<Proxy>,
+    /// The bricks the last verified frame needed, by id: what [`Predictor::Previous`]
+    /// predicts from.
+    previous: std::sync::Mutex<Option<Vec<bool>>>,
 }
 
 /// Validated before the volume is scanned, so a bad setting fails fast.
@@ -239,6 +249,8 @@ impl RenderJob {
             bricks: None,
             assignment_cache: std::sync::Mutex::default(),
             cull_scratch: CullScratch::new(),
+            proxy: std::sync::OnceLock::new(),
+            previous: std::sync::Mutex::default(),
         })
     }
 
@@ -269,6 +281,23 @@ impl RenderJob {
         more: &[std::path::PathBuf],
     ) -> Result<CoreLevels, PofError> {
         crate::scene::pofs::load_levels(self, first, more)
+    }
+
+    /// The low-resolution proxy of the volume for this job's family
+    /// ([`Predictor::Proxy`]), measured on first use.
+    #[must_use]
+    pub fn proxy(&self) -> &Proxy {
+        self.proxy
+            .get_or_init(|| Proxy::new(&self.volume, &self.sampled))
+    }
+
+    /// Forgets the bricks the last verified frame needed, so that the next
+    /// [`Predictor::Previous`] frame starts from the proxy's guess.
+    pub fn forget_previous(&self) {
+        *self
+            .previous
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = None;
     }
 
     /// Number of bricks that are empty for the current weights.
@@ -315,6 +344,10 @@ pub struct FrameStats {
     /// The march engine's rebuild of the occupancy for the frame's weights, in
     /// milliseconds, inside `frame_ms` (0 for the others).
     pub occupancy_ms: f64,
+    /// Whether the culling was verified (and repaired) while compositing.
+    pub verified: bool,
+    /// The predictor of a verified frame (`None` otherwise).
+    pub predictor: Option<&'static str>,
 }
 
 /// Brick counts of a frame.
@@ -328,8 +361,12 @@ pub struct BrickCounts {
     pub non_empty: usize,
     /// Non-empty bricks culled (never loaded, sampled or sent).
     pub culled: usize,
-    /// Non-empty bricks rendered (`non_empty − culled`, less bricks off-screen).
+    /// Non-empty bricks rendered (`non_empty − culled`, less bricks off-screen), the
+    /// repaired ones included.
     pub visible: usize,
+    /// Of the rendered bricks, those a verified frame's prediction culled and verification
+    /// found showing: rendered and blended in afterwards (0 unless verified).
+    pub repaired: usize,
 }
 
 /// One rank's share of a frame.
@@ -355,6 +392,13 @@ pub struct RankStats {
     pub rays: u64,
     /// Its resident memory at the end of the frame (bytes; threads of one process share it).
     pub resident_bytes: u64,
+    /// Verifying the prediction over its tile (0 unless verified).
+    #[serde(default)]
+    pub verify_ms: f64,
+    /// Repairing: learning every tile's failures, rendering its share of them and sending
+    /// their fragments (0 unless verified).
+    #[serde(default)]
+    pub repair_ms: f64,
 }
 
 /// Per-frame choices.
@@ -371,6 +415,12 @@ pub struct FrameOptions {
     /// Owners per brick (1, the paper's: each brick rendered by the rank it was dealt to;
     /// 2: by the less loaded of two, see [`BrickAssignment`]).
     pub replicas: usize,
+    /// Whether tile owners verify the cull while compositing and the frame repairs what
+    /// was culled wrongly (always for [`CullMode::Verified`]).
+    pub verify: bool,
+    /// What predicts the cull of a [`CullMode::Verified`] frame (other modes predict with
+    /// their own cull).
+    pub predictor: Predictor,
 }
 
 impl Default for FrameOptions {
@@ -381,6 +431,8 @@ impl Default for FrameOptions {
             ranks: 1,
             curve: Curve::Hilbert,
             replicas: 1,
+            verify: false,
+            predictor: Predictor::BEST,
         }
     }
 }
@@ -392,6 +444,9 @@ pub enum FrameError {
     /// A POF mode without POFs.
     #[error("cull mode {} needs precomputed POFs (built by `pofvr pof build`)", .0.name())]
     NoPofs(CullMode),
+    /// A POF predictor without POFs.
+    #[error("predictor {} needs precomputed POFs (built by `pofvr pof build`)", .0.name())]
+    NoPofsPredictor(Predictor),
     /// A threshold or rank count out of range.
     #[error(transparent)]
     OutOfRange(#[from] OutOfRange),
@@ -523,6 +578,7 @@ pub(crate) fn march_with(
         non_empty: job.grid.len() - empty,
         culled: 0,
         visible: job.grid.len() - empty,
+        repaired: 0,
     };
     // One rank: this process, which ray-casts through every visible brick.
     stats.ranks = vec![RankStats {
@@ -604,6 +660,9 @@ pub(crate) fn check_options(
 ) -> Result<(), FrameError> {
     if opts.cull.needs_pofs() && bounds.is_none() {
         return Err(FrameError::NoPofs(opts.cull));
+    }
+    if opts.cull == CullMode::Verified && opts.predictor.needs_pofs() && bounds.is_none() {
+        return Err(FrameError::NoPofsPredictor(opts.predictor));
     }
     if !(opts.cull_threshold > 0.0 && opts.cull_threshold <= 1.0) {
         return Err(OutOfRange {
@@ -708,6 +767,7 @@ fn rank_frame(
     let start = Instant::now();
     let me = comm.rank();
     let weights = look.weights;
+    let verify = opts.verify || opts.cull == CullMode::Verified;
     let cls = job.sampled.classify(weights, job.settings.step);
     let settings = RenderSettings {
         shade: look.shade,
@@ -717,7 +777,7 @@ fn rank_frame(
     let bricks = FrameBricks::new(&job.volume, &job.grid, &job.sampled, weights, camera);
     let assignment = job.assignment(opts.curve, comm.size(), opts.replicas)?;
 
-    // Cull for this rank's tile.
+    // Cull (or predict) for this rank's tile.
     let t = Instant::now();
     let layout = match bricks.bounds {
         Some(b) => Some(TileLayout::new(
@@ -743,79 +803,167 @@ fn rank_frame(
         skip_sub_bricks: true,
     };
     let culled = my_tile
-        .map(|tile| culler.cull(camera, &bricks, tile))
+        .map(|tile| cull_tile(job, &culler, (camera, &bricks), tile, opts))
         .unwrap_or_default();
     let cull_ms = t.elapsed().as_secs_f64() * 1e3;
 
     // Every rank learns the union of the visible sets: a brick is visible when it is visible
     // in any tile (the tiles' buffers agree wherever either is below the threshold).
     let t = Instant::now();
-    let ids: Vec<u8> = culled
-        .visible
-        .iter()
-        .flat_map(|b| b.0.to_le_bytes())
-        .collect();
-    let all = comm.all_gather(ids, EXCHANGE_TIMEOUT)?;
+    let all = comm.all_gather(ids_to_bytes(&culled.visible), EXCHANGE_TIMEOUT)?;
     let mut visible = vec![false; job.grid.len()];
     for bytes in &all {
-        for c in bytes.chunks_exact(4) {
-            let id = u32::from_le_bytes([c[0], c[1], c[2], c[3]]) as usize;
-            if let Some(v) = visible.get_mut(id) {
-                *v = true;
-            }
-        }
+        mark(&mut visible, bytes);
     }
     let mut comm_ms = t.elapsed().as_secs_f64() * 1e3;
 
     // Ray-cast this rank's visible bricks, each over its own footprint.
     let t = Instant::now();
     let frame = camera.frame();
-    let mine: Vec<BrickId> = if assignment.replicas() == 1 {
-        assignment
-            .of(me)
-            .iter()
-            .copied()
-            .filter(|b| visible[b.index()])
-            .collect()
-    } else {
-        // Every rank makes the same choice from the same visible set: no messages.
-        let ids: Vec<BrickId> = job.grid.ids().filter(|b| visible[b.index()]).collect();
-        let cost = |b: BrickId| render_cost(job, bounds, frame.forward, weights, b);
-        ids.iter()
-            .zip(assignment.renderers(&ids, &cost))
-            .filter(|(_, r)| *r == me)
-            .map(|(b, _)| *b)
-            .collect()
+    let mine_of = |set: &[bool]| -> Vec<BrickId> {
+        if assignment.replicas() == 1 {
+            assignment
+                .of(me)
+                .iter()
+                .copied()
+                .filter(|b| set[b.index()])
+                .collect()
+        } else {
+            // Every rank makes the same choice from the same set: no messages.
+            let ids: Vec<BrickId> = job.grid.ids().filter(|b| set[b.index()]).collect();
+            let cost = |b: BrickId| render_cost(job, bounds, frame.forward, weights, b);
+            ids.iter()
+                .zip(assignment.renderers(&ids, &cost))
+                .filter(|(_, r)| *r == me)
+                .map(|(b, _)| *b)
+                .collect()
+        }
     };
-    let (fragments, rays): (Vec<TileFragment>, Vec<RayStats>) = mine
-        .par_iter()
-        .map(|id| {
-            let rect = bricks.footprints[id.index()].expect("visible bricks are on screen");
-            let ibox = job.grid.index_box(*id);
-            let (pixels, st) = match job.bricks.as_ref().and_then(|s| s.get(*id)) {
-                Some(copy) => caster.render_box_copy(camera, &frame, rect, &ibox, copy),
-                None => caster.render_box(camera, &frame, rect, &ibox),
-            };
-            (
-                TileFragment {
-                    brick: *id,
-                    depth_key: bricks.depth_key[id.index()],
-                    rect,
-                    pixels,
-                },
-                st,
-            )
-        })
-        .unzip();
+    let render_all = |ids: &[BrickId]| -> (Vec<TileFragment>, RayStats) {
+        let (fragments, rays): (Vec<TileFragment>, Vec<RayStats>) = ids
+            .par_iter()
+            .map(|id| {
+                let rect = bricks.footprints[id.index()].expect("visible bricks are on screen");
+                let ibox = job.grid.index_box(*id);
+                let (pixels, st) = match job.bricks.as_ref().and_then(|s| s.get(*id)) {
+                    Some(copy) => caster.render_box_copy(camera, &frame, rect, &ibox, copy),
+                    None => caster.render_box(camera, &frame, rect, &ibox),
+                };
+                (
+                    TileFragment {
+                        brick: *id,
+                        depth_key: bricks.depth_key[id.index()],
+                        rect,
+                        pixels,
+                    },
+                    st,
+                )
+            })
+            .unzip();
+        let mut total = RayStats::default();
+        for r in rays {
+            total += r;
+        }
+        (fragments, total)
+    };
+    let mut mine = mine_of(&visible);
+    let (mut fragments, mut mine_stats) = render_all(&mine);
     let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
-    let mut mine_stats = RayStats::default();
-    for r in rays {
-        mine_stats += r;
-    }
 
-    // Fragments to tile owners, tiles to rank 0.
+    // Fragments to tile owners, tiles to rank 0; a verified frame is checked and repaired
+    // between the two.
     let t = Instant::now();
+    let (mut verify_ms, mut repair_ms, mut repaired) = (0.0, 0.0, 0usize);
     let image = match &layout {
+        Some(l) if verify => {
+            let view = VerifyView {
+                camera,
+                volume: &job.volume,
+                grid: &job.grid,
+                bricks: &bricks,
+            };
+            // This tile's culled bricks that no other tile found visible: the ones whose
+            // absence verification must justify here.
+            let suspects: Vec<BrickId> = culled
+                .culled
+                .iter()
+                .copied()
+                .filter(|b| !visible[b.index()])
+                .collect();
+            let tile = my_tile.unwrap_or(l.bounds());
+            let single = comm.size() == 1;
+            let ds = DirectSend::new(EXCHANGE_TIMEOUT);
+            let mut received = if single {
+                None
+            } else {
+                Some(ds.exchange(comm, l, &fragments)?)
+            };
+            let tv = Instant::now();
+            let verdict = match &received {
+                None => verify_tile(&view, tile, &fragments, &suspects, opts.cull_threshold),
+                Some(r) => verify_tile(
+                    &view,
+                    r.rect(),
+                    r.fragments(),
+                    &suspects,
+                    opts.cull_threshold,
+                ),
+            };
+            verify_ms = tv.elapsed().as_secs_f64() * 1e3;
+
+            // Repair, in one round. Why one suffices: blended opacity only grows as more
+            // fragments are blended, and a brick passed verification because the bricks in
+            // front of it that were rendered — a subset of those rendered in the end —
+            // already reach the threshold over its footprint. Adding the repaired bricks
+            // can only raise that opacity, so every brick that passed still passes, and
+            // every brick that failed is now rendered: nothing is left to repair. The
+            // repaired fragments join the others before the blend sorts them, so they
+            // land in visibility order, not on top.
+            let tr = Instant::now();
+            let all = comm.all_gather(
+                verdict_to_bytes(&verdict.failing, &verdict.needed),
+                EXCHANGE_TIMEOUT,
+            )?;
+            let mut failing = vec![false; job.grid.len()];
+            let mut needed = vec![false; job.grid.len()];
+            for bytes in &all {
+                let (f, n) = bytes_to_verdict(bytes)
+                    .ok_or_else(|| FrameError::Gather("malformed verification message".into()))?;
+                mark(&mut failing, f);
+                mark(&mut needed, n);
+                mark(&mut needed, f);
+            }
+            // Only a rendered brick or a failing one can be needed.
+            for (n, (v, f)) in needed.iter_mut().zip(visible.iter().zip(&failing)) {
+                *n &= *v || *f;
+            }
+            repaired = failing.iter().filter(|f| **f).count();
+            *job.previous
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(needed);
+            if repaired > 0 {
+                let fix = mine_of(&failing);
+                let (more, st) = render_all(&fix);
+                mine_stats += st;
+                mine.extend(fix);
+                match &mut received {
+                    None => fragments.extend(more),
+                    Some(r) => ds.exchange_more(comm, l, r, &more)?,
+                }
+                for (v, f) in visible.iter_mut().zip(&failing) {
+                    *v |= *f;
+                }
+            }
+            repair_ms = tr.elapsed().as_secs_f64() * 1e3;
+            match received {
+                None => Some(crate::composite::composite_local(
+                    &fragments,
+                    camera.width,
+                    camera.height,
+                )?),
+                Some(r) => ds.finish(comm, l, r)?,
+            }
+        }
         // One rank has nothing to exchange: blend in place, the same frame bit for bit.
         Some(_) if comm.size() == 1 => Some(crate::composite::composite_local(
             &fragments,
@@ -825,7 +973,7 @@ fn rank_frame(
         Some(l) => DirectSend::new(EXCHANGE_TIMEOUT).composite(comm, l, fragments)?,
         None => (me.index() == 0).then(|| Image::new(camera.width, camera.height)),
     };
-    let composite_ms = t.elapsed().as_secs_f64() * 1e3;
+    let composite_ms = t.elapsed().as_secs_f64() * 1e3 - verify_ms - repair_ms;
 
     let t = Instant::now();
     let mut rank = RankStats {
@@ -839,6 +987,8 @@ fn rank_frame(
         bytes_sent: comm.bytes_sent(),
         rays: mine_stats.rays,
         resident_bytes: resident_bytes(),
+        verify_ms,
+        repair_ms,
     };
     let gathered = comm.gather(
         Rank(0),
@@ -865,12 +1015,15 @@ fn rank_frame(
     stats.samples_per_ray = total.samples as f64 / rays_meeting(&job.volume, camera).max(1) as f64;
     let n_visible = visible.iter().filter(|v| **v).count();
     stats.cull = Some(opts.cull);
+    stats.verified = verify;
+    stats.predictor = verify.then(|| predictor_of(opts).name());
     stats.bricks = BrickCounts {
         total: job.grid.len(),
         empty: bricks.empty,
         non_empty: job.grid.len() - bricks.empty,
         culled: bricks.order.len() - n_visible,
         visible: n_visible,
+        repaired,
     };
     stats.culled_bricks = bricks
         .order
@@ -880,6 +1033,101 @@ fn rank_frame(
         .collect();
     stats.ranks = ranks;
     Ok(Some((image, stats)))
+}
+
+/// What predicts a frame's cull: a verified frame's predictor, or the mode's own cull.
+fn predictor_of(opts: &FrameOptions) -> Predictor {
+    match opts.cull {
+        CullMode::Verified => opts.predictor,
+        CullMode::Pof => Predictor::Pof,
+        CullMode::PofSet => Predictor::PofSet,
+        CullMode::None => Predictor::Nothing,
+        // The oracle's cull is its own; verifying it finds nothing to repair.
+        CullMode::Exact => Predictor::Nothing,
+    }
+}
+
+/// This rank's cull of `tile`: the mode's, or for a verified frame its predictor's.
+fn cull_tile(
+    job: &RenderJob,
+    culler: &Culler<'_>,
+    (camera, bricks): (&Camera, &FrameBricks),
+    tile: PixelRect,
+    opts: &FrameOptions,
+) -> CullResult {
+    if opts.cull != CullMode::Verified {
+        return culler.cull(camera, bricks, tile);
+    }
+    let start = Instant::now();
+    let with_mode = |mode| Culler { mode, ..*culler }.cull(camera, bricks, tile);
+    let proxy = || {
+        job.proxy().predict(
+            (&job.volume, &job.grid),
+            (camera, bricks),
+            culler.weights,
+            tile,
+            opts.cull_threshold,
+        )
+    };
+    let (visible, culled) = match opts.predictor {
+        Predictor::Pof => return with_mode(CullMode::Pof),
+        Predictor::PofSet => return with_mode(CullMode::PofSet),
+        Predictor::Proxy => proxy(),
+        Predictor::Previous => {
+            let previous = job
+                .previous
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .clone();
+            match previous.filter(|p| p.len() == job.grid.len()) {
+                Some(p) => split(&bricks_over_tile(bricks, tile), |b| !p[b.index()]),
+                None => proxy(),
+            }
+        }
+        Predictor::Nothing => split(&bricks_over_tile(bricks, tile), |_| false),
+        Predictor::Everything => split(&bricks_over_tile(bricks, tile), |_| true),
+        Predictor::Random(seed) => {
+            split(&bricks_over_tile(bricks, tile), |b| random_culls(seed, b))
+        }
+    };
+    CullResult {
+        visible,
+        culled,
+        cull_ms: start.elapsed().as_secs_f64() * 1e3,
+    }
+}
+
+/// Brick ids as little-endian `u32`s.
+fn ids_to_bytes(ids: &[BrickId]) -> Vec<u8> {
+    ids.iter().flat_map(|b| b.0.to_le_bytes()).collect()
+}
+
+/// Sets `set[id]` for every id of `bytes` (little-endian `u32`s; ids past the end are
+/// ignored).
+fn mark(set: &mut [bool], bytes: &[u8]) {
+    for c in bytes.chunks_exact(4) {
+        let id = u32::from_le_bytes([c[0], c[1], c[2], c[3]]) as usize;
+        if let Some(v) = set.get_mut(id) {
+            *v = true;
+        }
+    }
+}
+
+/// A tile's verdict for the exchange: the count of failing ids, the failing ids, the
+/// needed ids.
+fn verdict_to_bytes(failing: &[BrickId], needed: &[BrickId]) -> Vec<u8> {
+    let mut out = (failing.len() as u32).to_le_bytes().to_vec();
+    out.extend(ids_to_bytes(failing));
+    out.extend(ids_to_bytes(needed));
+    out
+}
+
+/// The (failing, needed) id bytes of [`verdict_to_bytes`]; `None` when malformed.
+fn bytes_to_verdict(bytes: &[u8]) -> Option<(&[u8], &[u8])> {
+    let n = u32::from_le_bytes(bytes.get(..4)?.try_into().ok()?) as usize;
+    let rest = &bytes[4..];
+    let split = n.checked_mul(4).filter(|s| *s <= rest.len())?;
+    Some(rest.split_at(split))
 }
 
 /// This process's resident set size in bytes (Linux), 0 where unknown.

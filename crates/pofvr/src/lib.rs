@@ -84,5 +84,5 @@ pub use error::{Error, Result};
 pub use frame::FrameStats;
 pub use pof::PofTable;
 pub use render::{Camera, Image, Projection, TransferFunction};
-pub use scene::{Cull, Engine, Frame, FrameRequest, PofBuild, Pofs, Scene, SceneBuilder};
+pub use scene::{Cull, Engine, Frame, FrameRequest, PofBuild, Pofs, Predict, Scene, SceneBuilder};
 pub use volume::Volume;

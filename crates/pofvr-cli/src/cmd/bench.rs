@@ -372,6 +372,8 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         "ideal": ideal_case,
         "threads": rayon::current_num_threads(),
         "speedup_pof_vs_none": speedup,
+        "speedup_verified_vs_none": result.speedup_verified_vs_none,
+        "speedup_verified_vs_none_8": result.speedup_verified_vs_none_8,
         "targets": targets,
         "pof": {
             "core_lengths": pofs.core_lengths(),

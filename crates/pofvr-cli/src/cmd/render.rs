@@ -3,13 +3,14 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use pofvr::brick::BrickGrid;
+use pofvr::cull::Predictor;
 use pofvr::distribute::Curve;
 use pofvr::frame::{FrameStats, RenderJob};
 use pofvr::render::{Camera, Image};
 use pofvr::volume::Volume;
 use pofvr::{CullMode, Engine, Frame, FrameRequest, Pofs, Scene};
 
-use crate::args::RenderArgs;
+use crate::args::{FrameArgs, RenderArgs};
 use crate::progress::Ui;
 use crate::resolve;
 
@@ -166,12 +167,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     let scene = scene;
     let engine = engine(&a.frame, backend.distributed())?;
     let cull = match mode {
-        Some(m) => Some(scene.cull(m).ok_or_else(|| {
-            anyhow!(
-                "--cull {} needs precomputed POFs (--pof FILE.pof, built by `pofvr pof build`)",
-                m.name()
-            )
-        })?),
+        Some(m) => Some(verified_cull(&a.frame, m, &scene)?),
         None => None,
     };
     let mut all = Vec::with_capacity(a.frames);
@@ -186,6 +182,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
                 &request
                     .engine(engine)
                     .cull(cull)
+                    .verify(a.frame.verify)
                     .threshold(a.frame.cull_threshold)
                     .ranks(a.frame.ranks)
                     .curve(curve)
@@ -248,6 +245,13 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             mode.name(),
             b.visible
         );
+        if let Some(p) = stats.predictor {
+            eprintln!(
+                "verified: predicted by {p}, {} repaired ({:.1}% of the rendered)",
+                b.repaired,
+                100.0 * b.repaired as f64 / b.visible.max(1) as f64
+            );
+        }
     }
     if all.len() > 1 {
         let ms: Vec<f64> = all.iter().map(|s| s.frame_ms).collect();
@@ -260,6 +264,44 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         );
     }
     Ok(())
+}
+
+/// The cull of `--cull` mode `m` with `--predictor` and `--verify`, checked.
+pub(crate) fn verified_cull<'s>(
+    a: &FrameArgs,
+    m: CullMode,
+    scene: &'s Scene,
+) -> Result<pofvr::Cull<'s>> {
+    let predictor: Option<Predictor> = a
+        .predictor
+        .as_deref()
+        .map(str::parse)
+        .transpose()
+        .map_err(|e: String| anyhow!("--predictor: {e}"))?;
+    if predictor.is_some() && m != CullMode::Verified {
+        bail!(
+            "--predictor picks the predictor of --cull verified, got --cull {}",
+            m.name()
+        );
+    }
+    if a.verify && !matches!(m, CullMode::Pof | CullMode::PofSet | CullMode::Verified) {
+        bail!(
+            "--verify adds verification to --cull pof and pof-set, got --cull {}",
+            m.name()
+        );
+    }
+    let no_pofs = |what: String| {
+        anyhow!("{what} needs precomputed POFs (--pof FILE.pof, built by `pofvr pof build`)")
+    };
+    if m == CullMode::Verified {
+        let p = predictor.unwrap_or(Predictor::BEST);
+        return pofvr::Predict::from_predictor(p, scene.pofs())
+            .map(pofvr::Cull::Verified)
+            .ok_or_else(|| no_pofs(format!("--predictor {}", p.name())));
+    }
+    scene
+        .cull(m)
+        .ok_or_else(|| no_pofs(format!("--cull {}", m.name())))
 }
 
 /// The engine of `--engine`, or by default march for one process without `--cull`,

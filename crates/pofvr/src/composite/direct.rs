@@ -5,7 +5,7 @@ use std::time::Duration;
 use rayon::prelude::*;
 
 use crate::comm::{CommError, Communicator, Deadline, Rank};
-use crate::render::Image;
+use crate::render::{Image, PixelRect};
 
 use super::{
     sort_front_to_back, CompositeError, Compositor, SparseTile, TileFragment, TileId, TileLayout,
@@ -94,14 +94,113 @@ impl Compositor for DirectSend {
     }
 }
 
+/// A tile owner's fragments, received and not yet blended: what verification reads
+/// before the tile is blended ([`DirectSend::exchange`], [`DirectSend::finish`]).
+#[derive(Clone, Debug)]
+pub struct ReceivedTile {
+    tile: TileId,
+    rect: PixelRect,
+    fragments: Vec<SparseTile>,
+}
+
+impl ReceivedTile {
+    /// The owner's tile.
+    #[must_use]
+    pub fn tile(&self) -> TileId {
+        self.tile
+    }
+
+    /// Its pixels.
+    #[must_use]
+    pub fn rect(&self) -> PixelRect {
+        self.rect
+    }
+
+    /// The fragments received so far (the owner's own included), in arrival order.
+    #[must_use]
+    pub fn fragments(&self) -> &[SparseTile] {
+        &self.fragments
+    }
+}
+
 impl DirectSend {
+    /// The first half of [`Compositor::composite`]: sends this rank's `fragments` to the
+    /// owners of the tiles they overlap and receives those of this rank's tile, unblended.
+    /// Every rank calls it together; it may be called again with more fragments
+    /// ([`DirectSend::exchange_more`]) before [`DirectSend::finish`].
+    ///
+    /// # Errors
+    /// As [`Compositor::composite`]; a failing rank aborts `comm`.
+    pub fn exchange(
+        &self,
+        comm: &dyn Communicator,
+        layout: &TileLayout,
+        fragments: &[TileFragment],
+    ) -> Result<ReceivedTile, CompositeError> {
+        let mut received = ReceivedTile {
+            tile: TileId(0),
+            rect: empty_rect(),
+            fragments: Vec::new(),
+        };
+        aborting(
+            comm,
+            self.exchange_into(comm, layout, fragments, &mut received),
+        )?;
+        Ok(received)
+    }
+
+    /// Another round of [`DirectSend::exchange`] into `received`: more fragments (a
+    /// repair's) go to their owners, which keep them with the earlier ones; the blend
+    /// sorts all of them, so they land in visibility order whatever the round.
+    ///
+    /// # Errors
+    /// As [`DirectSend::exchange`].
+    pub fn exchange_more(
+        &self,
+        comm: &dyn Communicator,
+        layout: &TileLayout,
+        received: &mut ReceivedTile,
+        fragments: &[TileFragment],
+    ) -> Result<(), CompositeError> {
+        aborting(comm, self.exchange_into(comm, layout, fragments, received))
+    }
+
+    /// The second half of [`Compositor::composite`]: blends the owner's fragments front to
+    /// back and gathers the tiles into the frame on rank 0 (`None` elsewhere).
+    ///
+    /// # Errors
+    /// As [`Compositor::composite`]; a failing rank aborts `comm`.
+    pub fn finish(
+        &self,
+        comm: &dyn Communicator,
+        layout: &TileLayout,
+        received: ReceivedTile,
+    ) -> Result<Option<Image>, CompositeError> {
+        aborting(comm, self.finish_inner(comm, layout, received))
+    }
+
     fn run(
         &self,
         comm: &dyn Communicator,
         layout: &TileLayout,
         fragments: &[TileFragment],
     ) -> Result<Option<Image>, CompositeError> {
-        let deadline = Deadline::new(self.timeout);
+        let mut received = ReceivedTile {
+            tile: TileId(0),
+            rect: empty_rect(),
+            fragments: Vec::new(),
+        };
+        self.exchange_into(comm, layout, fragments, &mut received)?;
+        self.finish_inner(comm, layout, received)
+    }
+
+    fn exchange_into(
+        &self,
+        comm: &dyn Communicator,
+        layout: &TileLayout,
+        fragments: &[TileFragment],
+        received: &mut ReceivedTile,
+    ) -> Result<(), CompositeError> {
         // Owners stop waiting for fragments at ¾ of the timeout, before rank 0 gives up on
         // their tiles, so the owner's precise error is the one that aborts the frame.
         let fragments_deadline = Deadline::new(self.timeout.saturating_mul(3) / 4);
@@ -153,7 +252,22 @@ impl DirectSend {
             }
         }
 
-        let pixels = receive_and_blend(comm, layout, my_tile, mine, fragments_deadline)?;
+        let got = receive(comm, layout, my_tile, mine, fragments_deadline)?;
+        received.tile = my_tile;
+        received.rect = layout.tile(my_tile).unwrap_or(empty_rect());
+        received.fragments.extend(got);
+        Ok(())
+    }
+
+    fn finish_inner(
+        &self,
+        comm: &dyn Communicator,
+        layout: &TileLayout,
+        received: ReceivedTile,
+    ) -> Result<Option<Image>, CompositeError> {
+        let deadline = Deadline::new(self.timeout);
+        let me = comm.rank();
+        let pixels = blend(comm.rank(), received)?;
 
         // Gather the tiles on rank 0.
         let bytes: Vec<u8> = pixels
@@ -197,6 +311,28 @@ impl DirectSend {
     }
 }
 
+/// Aborts `comm` on an error of this rank's (not on another's abort), so no peer waits.
+fn aborting<T>(
+    comm: &dyn Communicator,
+    result: Result<T, CompositeError>,
+) -> Result<T, CompositeError> {
+    if let Err(e) = &result {
+        if !matches!(e, CompositeError::Comm(CommError::Aborted { .. })) {
+            comm.abort(&e.to_string());
+        }
+    }
+    result
+}
+
+fn empty_rect() -> PixelRect {
+    PixelRect {
+        x0: 0,
+        y0: 0,
+        x1: 0,
+        y1: 0,
+    }
+}
+
 fn tile_id(i: usize) -> TileId {
     // Layouts have at most `u32::MAX` tiles.
     TileId(i as u32)
@@ -206,25 +342,20 @@ fn rank_at(i: usize) -> Rank {
     Rank(tile_id(i).0)
 }
 
-/// Receives this owner's fragments, checking each sender against its announced count,
-/// and blends them with its own in depth order.
+/// Receives this owner's fragments, checking each sender against its announced count;
+/// returns them with its own.
 ///
 /// Senders are read one at a time, each stream by name: a fast peer may already be sending
 /// the next frame's count, which must stay queued rather than be taken for this frame's.
-fn receive_and_blend(
+fn receive(
     comm: &dyn Communicator,
     layout: &TileLayout,
     tile: TileId,
     mine: Vec<SparseTile>,
     deadline: Deadline,
-) -> Result<Vec<[f32; 4]>, CompositeError> {
+) -> Result<Vec<SparseTile>, CompositeError> {
     let me = comm.rank();
-    let rect = layout.tile(tile).unwrap_or(crate::render::PixelRect {
-        x0: 0,
-        y0: 0,
-        x1: 0,
-        y1: 0,
-    });
+    let rect = layout.tile(tile).unwrap_or(empty_rect());
     let mut received = mine;
     for from in (0..comm.size()).map(rank_at).filter(|&r| r != me) {
         let protocol = |what: String| CompositeError::Protocol {
@@ -291,7 +422,16 @@ fn receive_and_blend(
             received.push(sparse);
         }
     }
+    Ok(received)
+}
 
+/// Blends an owner's fragments into its tile in depth order.
+fn blend(me: Rank, received: ReceivedTile) -> Result<Vec<[f32; 4]>, CompositeError> {
+    let ReceivedTile {
+        tile,
+        rect,
+        fragments: mut received,
+    } = received;
     sort_front_to_back(&mut received, |s| (s.depth_key(), s.brick()))?;
     let mut pixels = vec![[0.0f32; 4]; rect.area()];
     for s in &received {

@@ -19,7 +19,7 @@ use std::fmt;
 
 use rayon::prelude::*;
 
-pub use direct::DirectSend;
+pub use direct::{DirectSend, ReceivedTile};
 pub use sparse::{pack, unpack, SparseTile, MAX_FRAGMENT_PIXELS};
 
 use crate::brick::BrickId;

@@ -273,6 +273,36 @@ impl SparseTile {
     }
 }
 
+impl SparseTile {
+    /// Blends the stored pixels' opacity behind `alpha`, the opacity of the pixels of
+    /// `target_rect` (the alpha channel of [`SparseTile::blend_into`], what verification
+    /// reads); the part outside `target_rect` is left out.
+    pub(crate) fn blend_alpha_into(&self, alpha: &mut [f32], target_rect: PixelRect) {
+        if alpha.len() != target_rect.area() {
+            return;
+        }
+        let tw = target_rect.width() as usize;
+        let mut pixels = self.pixels.as_slice();
+        for s in &self.spans {
+            let (src, rest) = pixels.split_at(s.len as usize);
+            pixels = rest;
+            let y = self.rect.y0 + s.dy;
+            if y < target_rect.y0 || y >= target_rect.y1 {
+                continue;
+            }
+            let x0 = self.rect.x0 + s.dx;
+            for (k, p) in src.iter().enumerate() {
+                let x = x0 + k as u32;
+                if x >= target_rect.x0 && x < target_rect.x1 {
+                    let d = &mut alpha
+                        [(y - target_rect.y0) as usize * tw + (x - target_rect.x0) as usize];
+                    *d += (1.0 - *d) * p[3];
+                }
+            }
+        }
+    }
+}
+
 /// Clips `fragment` to `clip` and packs it for sending, transparent runs left out.
 ///
 /// # Errors

@@ -17,6 +17,10 @@
 //!   brick's bounds to the buffer, `exact` its rendered opacity (the oracle); `scratch`
 //!   keeps the buffers ([`CullScratch`]).
 //! - [`ideal`] and [`range_bound`]: other bounds, for diagnostics and tests.
+//! - Predict, verify, repair ([`CullMode::Verified`]): a [`Predictor`] guesses ([`proxy`]
+//!   marches a low-resolution copy of the volume; [`predict`] holds the others) and
+//!   [`verify`] tests the guess on the opacity tile owners blend, so a wrong guess costs a
+//!   repair, never a pixel.
 
 mod bound;
 mod exact;
@@ -24,15 +28,23 @@ mod fill;
 pub mod ideal;
 mod mode;
 mod order;
+pub mod predict;
+pub mod proxy;
 pub mod range_bound;
 mod scratch;
 mod spans;
 mod strip;
 #[cfg(test)]
 mod test;
+#[cfg(test)]
+mod verified_test;
+pub mod verify;
 
 pub use bound::{CoreLevels, OpacityBound};
 pub use mode::CullMode;
 pub use order::FrameBricks;
+pub use predict::Predictor;
+pub use proxy::Proxy;
 pub use scratch::CullScratch;
 pub use strip::{CullResult, Culler};
+pub use verify::{verify_tile, AlphaLayer, Verdict, VerifyView};

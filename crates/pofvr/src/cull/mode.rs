@@ -16,6 +16,10 @@ pub enum CullMode {
     /// The sequential oracle: bricks are rendered front to back and tested against the
     /// opacity actually composited. Exists to measure how close POF culling gets.
     Exact,
+    /// Predict, verify, repair: a [`super::Predictor`] culls, tile owners verify the
+    /// prediction while compositing and the bricks it culled wrongly are rendered and
+    /// blended in, so the threshold rule holds whatever the prediction.
+    Verified,
 }
 
 impl CullMode {
@@ -27,6 +31,7 @@ impl CullMode {
             CullMode::Pof => "pof",
             CullMode::PofSet => "pof-set",
             CullMode::Exact => "exact",
+            CullMode::Verified => "verified",
         }
     }
 
@@ -45,8 +50,9 @@ impl std::str::FromStr for CullMode {
             "pof" => Ok(CullMode::Pof),
             "pof-set" | "pofset" | "pof_set" => Ok(CullMode::PofSet),
             "exact" => Ok(CullMode::Exact),
+            "verified" => Ok(CullMode::Verified),
             other => Err(format!(
-                "unknown cull mode {other:?}, expected none, pof, pof-set or exact"
+                "unknown cull mode {other:?}, expected none, pof, pof-set, exact or verified"
             )),
         }
     }

@@ -104,7 +104,8 @@ impl Culler<'_> {
         mine: &[(BrickId, PixelRect)],
     ) -> CullResult {
         let mut out = CullResult::default();
-        if self.mode == CullMode::None {
+        // A verified frame culls through its predictor, not here: as without culling.
+        if matches!(self.mode, CullMode::None | CullMode::Verified) {
             out.visible = mine.iter().map(|(id, _)| *id).collect();
             return out;
         }
@@ -115,7 +116,9 @@ impl Culler<'_> {
         // What a visible brick adds to the buffer: its POF bounds, or (`None`, the oracle) the
         // opacity it composites, rendered.
         let mut fill = match self.mode {
-            CullMode::None => unreachable!("every brick is visible without culling"),
+            CullMode::None | CullMode::Verified => {
+                unreachable!("every brick is visible without culling")
+            }
             CullMode::Exact => None,
             CullMode::Pof | CullMode::PofSet => {
                 let bounds = self.bounds.expect("POF culling needs POFs");

@@ -313,7 +313,16 @@ fn bench_cull_measures_every_case_and_checks_named_targets() {
     assert!(pof.culled <= b.case("exact", 1, 1).unwrap().culled);
     assert_eq!(pof.culled, b.case("pof", 32, 1).unwrap().culled);
     let measures = b.measures();
-    assert_eq!(measures.len(), 6, "{measures:?}");
+    assert_eq!(measures.len(), 8, "{measures:?}");
+    for what in [
+        "frame speed-up, verified over none (1 rank)",
+        "frame speed-up, verified over none (8 ranks)",
+    ] {
+        assert!(
+            measures.iter().any(|(w, x)| w == what && *x > 0.0),
+            "{measures:?}"
+        );
+    }
     let spec = |what: &str, target, at_most| TargetSpec {
         what: what.into(),
         target,

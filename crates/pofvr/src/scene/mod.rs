@@ -22,7 +22,7 @@ pub use builder::SceneBuilder;
 pub use engine::Engine;
 pub use output::Frame;
 pub use pofs::{PofBuild, Pofs};
-pub use request::{Cull, FrameRequest};
+pub use request::{Cull, FrameRequest, Predict};
 
 use crate::brick::BrickGrid;
 use crate::comm::Communicator;
@@ -344,7 +344,7 @@ impl Scene {
         let weights = req.weights.unwrap_or(&self.job.tf.weights);
         check_weights(&self.job.tf, weights)?;
         let mode = req.cull.mode();
-        if self.job.settings.jitter.is_some() && mode.needs_pofs() {
+        if self.job.settings.jitter.is_some() && req.cull.pofs().is_some() {
             return Err(Error::JitteredPofs { mode });
         }
         if let Some(p) = req.cull.pofs() {
@@ -362,6 +362,8 @@ impl Scene {
             ranks: req.ranks,
             curve: req.curve,
             replicas: req.replicas,
+            verify: req.verify,
+            predictor: req.cull.predictor(),
         };
         Ok((look, opts))
     }

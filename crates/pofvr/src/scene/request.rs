@@ -1,7 +1,7 @@
 //! [`FrameRequest`]: everything one frame of a [`crate::Scene`] is rendered with, and
 //! [`Cull`], the cull mode with the bounds it reads.
 
-use crate::cull::CullMode;
+use crate::cull::{CullMode, Predictor};
 use crate::distribute::Curve;
 use crate::render::Camera;
 
@@ -22,6 +22,70 @@ pub enum Cull<'a> {
     /// Aggressive POF-set culling: culls more, but an estimate, not a bound (a few pixels
     /// may break the threshold rule). Reads POF sets where the POFs hold them.
     PofSet(&'a Pofs),
+    /// Predict, verify, repair: `Predict` guesses the cull, tile owners verify it while
+    /// compositing and what it culled wrongly is rendered and blended in, so the threshold
+    /// rule holds whatever the guess.
+    Verified(Predict<'a>),
+}
+
+/// What predicts a [`Cull::Verified`] frame's cull; the POF predictors carry the POFs
+/// they read ([`Predictor`] names them).
+#[derive(Clone, Copy, Debug, Default)]
+pub enum Predict<'a> {
+    /// The low-resolution proxy ([`Predictor::Proxy`], the best: [`Predictor::BEST`]).
+    #[default]
+    Proxy,
+    /// The conservative POF cull.
+    Pof(&'a Pofs),
+    /// The POF-set estimate.
+    PofSet(&'a Pofs),
+    /// The bricks the scene's previous verified frame needed ([`Predictor::Previous`]).
+    Previous,
+    /// Culls nothing.
+    Nothing,
+    /// Culls everything (a worst case: everything that shows is repaired).
+    Everything,
+    /// Culls each brick with probability ½, by a hash of the seed and the brick.
+    Random(u64),
+}
+
+impl<'a> Predict<'a> {
+    /// The predictor, as the frame statistics name it.
+    #[must_use]
+    pub fn predictor(self) -> Predictor {
+        match self {
+            Predict::Proxy => Predictor::Proxy,
+            Predict::Pof(_) => Predictor::Pof,
+            Predict::PofSet(_) => Predictor::PofSet,
+            Predict::Previous => Predictor::Previous,
+            Predict::Nothing => Predictor::Nothing,
+            Predict::Everything => Predictor::Everything,
+            Predict::Random(seed) => Predictor::Random(seed),
+        }
+    }
+
+    /// The POFs it reads, if any.
+    #[must_use]
+    pub fn pofs(self) -> Option<&'a Pofs> {
+        match self {
+            Predict::Pof(p) | Predict::PofSet(p) => Some(p),
+            _ => None,
+        }
+    }
+
+    /// `predictor` with `pofs`; `None` when it reads POFs and there are none.
+    #[must_use]
+    pub fn from_predictor(predictor: Predictor, pofs: Option<&'a Pofs>) -> Option<Self> {
+        Some(match predictor {
+            Predictor::Proxy => Predict::Proxy,
+            Predictor::Pof => Predict::Pof(pofs?),
+            Predictor::PofSet => Predict::PofSet(pofs?),
+            Predictor::Previous => Predict::Previous,
+            Predictor::Nothing => Predict::Nothing,
+            Predictor::Everything => Predict::Everything,
+            Predictor::Random(seed) => Predict::Random(seed),
+        })
+    }
 }
 
 impl<'a> Cull<'a> {
@@ -33,6 +97,7 @@ impl<'a> Cull<'a> {
             Cull::Exact => CullMode::Exact,
             Cull::Pof(_) => CullMode::Pof,
             Cull::PofSet(_) => CullMode::PofSet,
+            Cull::Verified(_) => CullMode::Verified,
         }
     }
 
@@ -42,10 +107,22 @@ impl<'a> Cull<'a> {
         match self {
             Cull::None | Cull::Exact => None,
             Cull::Pof(p) | Cull::PofSet(p) => Some(p),
+            Cull::Verified(p) => p.pofs(),
         }
     }
 
-    /// `mode` with `pofs`; `None` when `mode` reads POFs and there are none.
+    /// The predictor of a [`Cull::Verified`] frame ([`Predictor::BEST`] for the others,
+    /// which predict with their own cull).
+    #[must_use]
+    pub fn predictor(self) -> Predictor {
+        match self {
+            Cull::Verified(p) => p.predictor(),
+            _ => Predictor::BEST,
+        }
+    }
+
+    /// `mode` with `pofs` (verified: with the best predictor, [`Predictor::BEST`]); `None`
+    /// when `mode` reads POFs and there are none.
     #[must_use]
     pub fn from_mode(mode: CullMode, pofs: Option<&'a Pofs>) -> Option<Self> {
         match mode {
@@ -53,6 +130,9 @@ impl<'a> Cull<'a> {
             CullMode::Exact => Some(Cull::Exact),
             CullMode::Pof => pofs.map(Cull::Pof),
             CullMode::PofSet => pofs.map(Cull::PofSet),
+            CullMode::Verified => {
+                Predict::from_predictor(Predictor::BEST, pofs).map(Cull::Verified)
+            }
         }
     }
 }
@@ -90,6 +170,10 @@ pub struct FrameRequest<'a> {
     /// The renderer. Default `None`: [`Engine::March`] for one rank with no culling on a
     /// scene that holds the whole volume, [`Engine::Bricks`] otherwise.
     pub engine: Option<Engine>,
+    /// Whether tile owners verify the cull while compositing and the frame repairs what it
+    /// culled wrongly: so the threshold rule holds for [`Cull::PofSet`] too. Always on for
+    /// [`Cull::Verified`]. Default off.
+    pub verify: bool,
 }
 
 impl<'a> FrameRequest<'a> {
@@ -107,6 +191,7 @@ impl<'a> FrameRequest<'a> {
             curve: Curve::Hilbert,
             replicas: 1,
             engine: None,
+            verify: false,
         }
     }
 
@@ -157,6 +242,13 @@ impl<'a> FrameRequest<'a> {
     #[must_use]
     pub fn engine(mut self, engine: Engine) -> Self {
         self.engine = Some(engine);
+        self
+    }
+
+    /// Verified and repaired ([`FrameRequest::verify`]).
+    #[must_use]
+    pub fn verify(mut self, verify: bool) -> Self {
+        self.verify = verify;
         self
     }
 

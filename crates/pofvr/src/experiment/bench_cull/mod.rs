@@ -17,16 +17,18 @@ use super::{culled_fraction, load_balance, ExperimentError, Progress};
 
 /// The cases of the bench, (mode, ranks, replicas): the paper's deal at every count, and
 /// two owners per brick where balance is the question.
-pub const CASES: [(CullMode, usize, usize); 12] = [
+pub const CASES: [(CullMode, usize, usize); 14] = [
     (CullMode::None, 1, 1),
     (CullMode::Pof, 1, 1),
     (CullMode::PofSet, 1, 1),
     (CullMode::Exact, 1, 1),
+    (CullMode::Verified, 1, 1),
     (CullMode::None, 2, 1),
     (CullMode::Pof, 2, 1),
     (CullMode::None, 8, 1),
     (CullMode::Pof, 8, 1),
     (CullMode::Pof, 8, 2),
+    (CullMode::Verified, 8, 1),
     (CullMode::None, 32, 1),
     (CullMode::Pof, 32, 1),
     (CullMode::Pof, 32, 2),
@@ -95,6 +97,10 @@ pub struct CullBench {
     pub cases: Vec<CullCase>,
     /// Median frame time without culling over that with POF culling, at 1 rank.
     pub speedup_pof_vs_none: Option<f64>,
+    /// Median frame time without culling over that with verified culling, at 1 rank.
+    pub speedup_verified_vs_none: Option<f64>,
+    /// The same at 8 ranks.
+    pub speedup_verified_vs_none_8: Option<f64>,
 }
 
 impl CullBench {
@@ -145,6 +151,15 @@ impl CullBench {
         if let Some(x) = self.speedup_pof_vs_none {
             out.push(("frame speed-up, pof over none (1 rank)".to_string(), x));
         }
+        if let Some(x) = self.speedup_verified_vs_none {
+            out.push(("frame speed-up, verified over none (1 rank)".to_string(), x));
+        }
+        if let Some(x) = self.speedup_verified_vs_none_8 {
+            out.push((
+                "frame speed-up, verified over none (8 ranks)".to_string(),
+                x,
+            ));
+        }
         out
     }
 }
@@ -190,7 +205,16 @@ pub fn bench_cull(
     let mut bench = CullBench {
         cases,
         speedup_pof_vs_none: None,
+        speedup_verified_vs_none: None,
+        speedup_verified_vs_none_8: None,
     };
+    let speedup = |mode, ranks| match (bench.case("none", ranks, 1), bench.case(mode, ranks, 1)) {
+        (Some(none), Some(m)) => Some(none.median_frame_ms / m.median_frame_ms),
+        _ => None,
+    };
+    let (one, eight) = (speedup("verified", 1), speedup("verified", 8));
+    bench.speedup_verified_vs_none = one;
+    bench.speedup_verified_vs_none_8 = eight;
     bench.speedup_pof_vs_none = match (bench.case("none", 1, 1), bench.case("pof", 1, 1)) {
         (Some(none), Some(pof)) => Some(none.median_frame_ms / pof.median_frame_ms),
         _ => None,

@@ -3,9 +3,10 @@
 
 use serde::Serialize;
 
-use crate::cull::{CullMode, OpacityBound};
+use crate::check::check_threshold_rule;
+use crate::cull::{CullMode, OpacityBound, Predictor};
 use crate::experiment::{culled_fraction, load_balance, ExperimentError, Progress};
-use crate::frame::{render_frame, FrameOptions, RenderJob};
+use crate::frame::{render_frame, render_reference, FrameOptions, RenderJob};
 use crate::render::{Camera, Projection};
 
 /// `n` views spread evenly over the sphere: equal steps of sin(elevation), azimuths turned
@@ -41,6 +42,22 @@ pub struct SweepView {
     pub balance_32: f64,
     /// The same with two owners per brick.
     pub balance_32_replicas_2: f64,
+    /// Non-empty bricks (on screen or not).
+    pub non_empty: usize,
+    /// Bricks the oracle renders.
+    pub rendered_exact: usize,
+    /// Bricks verified culling renders (with [`Predictor::BEST`], 1 rank), the repaired
+    /// ones included.
+    pub rendered_verified: usize,
+    /// Of those, the repaired.
+    pub repaired_verified: usize,
+    /// Pixels of the verified frame breaking the threshold rule against the whole-volume
+    /// reference.
+    pub rule_violations_verified: u64,
+    /// Verification time of the verified frame (1 rank), milliseconds.
+    pub verify_ms: f64,
+    /// Repair time of the verified frame (1 rank), milliseconds.
+    pub repair_ms: f64,
 }
 
 /// Mean and worst of a measure over the sweep's views.
@@ -67,6 +84,13 @@ pub struct SweepSummary {
     pub balance_32: Option<Spread>,
     /// Balance at 32 ranks, two owners per brick.
     pub balance_32_replicas_2: Option<Spread>,
+    /// Bricks verified culling renders beyond the oracle's, in percent of the non-empty
+    /// bricks.
+    pub points_rendered_over_exact_verified: Option<Spread>,
+    /// Repaired bricks in percent of those verified culling renders.
+    pub repaired_percent_verified: Option<Spread>,
+    /// Threshold-rule violations of verified culling, pixels per view.
+    pub rule_violations_verified: Option<Spread>,
 }
 
 impl SweepSummary {
@@ -85,6 +109,14 @@ impl SweepSummary {
                 .flatten(),
             balance_32: spread(rows, |v| v.balance_32),
             balance_32_replicas_2: spread(rows, |v| v.balance_32_replicas_2),
+            points_rendered_over_exact_verified: spread(rows, |v| {
+                100.0 * (v.rendered_verified as f64 - v.rendered_exact as f64)
+                    / v.non_empty.max(1) as f64
+            }),
+            repaired_percent_verified: spread(rows, |v| {
+                100.0 * v.repaired_verified as f64 / v.rendered_verified.max(1) as f64
+            }),
+            rule_violations_verified: spread(rows, |v| v.rule_violations_verified as f64),
         }
     }
 }
@@ -127,18 +159,46 @@ pub fn sweep(
             render_frame(job, Some(bound), &cam, &opts).map(|(_, st)| st)
         };
         let run = |cull, ranks, replicas| run_with(bounds, cull, ranks, replicas);
+        let exact = run(CullMode::Exact, 1, 1)?;
+        let (image, verified) = render_frame(
+            job,
+            Some(bounds),
+            &cam,
+            &FrameOptions {
+                cull: CullMode::Verified,
+                predictor: Predictor::BEST,
+                ..FrameOptions::default()
+            },
+        )?;
+        let (reference, _) = render_reference(job, &cam);
+        let rule = check_threshold_rule(&reference, &image, FrameOptions::default().cull_threshold);
         out.push(SweepView {
             azimuth: az,
             elevation: el,
             culled_fraction_pof: culled_fraction(&run(CullMode::Pof, 1, 1)?),
             culled_fraction_pof_set: culled_fraction(&run(CullMode::PofSet, 1, 1)?),
-            culled_fraction_exact: culled_fraction(&run(CullMode::Exact, 1, 1)?),
+            culled_fraction_exact: culled_fraction(&exact),
             culled_fraction_ideal: match ideal {
                 Some(i) => Some(culled_fraction(&run_with(i, CullMode::Pof, 1, 1)?)),
                 None => None,
             },
             balance_32: load_balance(&run(CullMode::Pof, 32, 1)?),
             balance_32_replicas_2: load_balance(&run(CullMode::Pof, 32, 2)?),
+            non_empty: verified.bricks.non_empty,
+            rendered_exact: exact.bricks.visible,
+            rendered_verified: verified.bricks.visible,
+            repaired_verified: verified.bricks.repaired,
+            rule_violations_verified: rule.violations,
+            verify_ms: verified
+                .ranks
+                .iter()
+                .map(|r| r.verify_ms)
+                .fold(0.0, f64::max),
+            repair_ms: verified
+                .ranks
+                .iter()
+                .map(|r| r.repair_ms)
+                .fold(0.0, f64::max),
         });
         progress.inc();
     }

@@ -1,0 +1,314 @@
+//! Predict, verify, repair: the threshold rule for every predictor, good or deliberately
+//! bad; one round of repair; the same frame for any rank count.
+
+use super::range_bound::RangeBound;
+use super::test::assert_conservative;
+use super::*;
+use crate::brick::BrickId;
+use crate::composite::TileFragment;
+use crate::distribute::Curve;
+use crate::frame::{render_frame, render_reference, FrameOptions, FrameStats, RenderJob};
+use crate::render::{families, Camera, Projection, RayCaster, RenderSettings};
+use crate::volume::phantom::Phantom;
+
+fn job(n: usize, weights: &[f32]) -> RenderJob {
+    let mut tf = families::for_phantom(Phantom::SheppLogan);
+    tf.set_weights(weights.to_vec()).unwrap();
+    RenderJob::new(
+        Phantom::SheppLogan.generate(n),
+        tf,
+        8,
+        RenderSettings::default(),
+    )
+    .unwrap()
+}
+
+fn cam(job: &RenderJob, az: f64, el: f64, p: Projection) -> Camera {
+    Camera::orbit(&job.volume, az, el, 72, 64, p)
+}
+
+fn verified(predictor: Predictor, ranks: usize) -> FrameOptions {
+    FrameOptions {
+        cull: CullMode::Verified,
+        predictor,
+        ranks,
+        ..FrameOptions::default()
+    }
+}
+
+const PREDICTORS: [Predictor; 8] = [
+    Predictor::Proxy,
+    Predictor::Pof,
+    Predictor::PofSet,
+    Predictor::Previous,
+    Predictor::Nothing,
+    Predictor::Everything,
+    Predictor::Random(1),
+    Predictor::Random(0xdead_beef),
+];
+
+/// Renders the bricks `st` did not cull and verifies the culled ones against them: what
+/// a second round of verification would find.
+fn second_round(j: &RenderJob, c: &Camera, st: &FrameStats, threshold: f32) -> Verdict {
+    let bricks = FrameBricks::new(&j.volume, &j.grid, &j.sampled, &j.tf.weights, c);
+    let cls = j.sampled.classify(&j.tf.weights, j.settings.step);
+    let caster = RayCaster::new(&j.volume, &cls, j.settings);
+    let frame = c.frame();
+    let culled: std::collections::HashSet<BrickId> = st.culled_bricks.iter().copied().collect();
+    let fragments: Vec<TileFragment> = bricks
+        .order
+        .iter()
+        .filter(|b| !culled.contains(b))
+        .map(|&b| {
+            let rect = bricks.footprints[b.index()].unwrap();
+            let (pixels, _) = caster.render_box(c, &frame, rect, &j.grid.index_box(b));
+            TileFragment {
+                brick: b,
+                depth_key: bricks.depth_key[b.index()],
+                rect,
+                pixels,
+            }
+        })
+        .collect();
+    let view = VerifyView {
+        camera: c,
+        volume: &j.volume,
+        grid: &j.grid,
+        bricks: &bricks,
+    };
+    verify_tile(
+        &view,
+        bricks.bounds.unwrap(),
+        &fragments,
+        &st.culled_bricks,
+        threshold,
+    )
+}
+
+#[test]
+fn every_predictor_obeys_the_threshold_rule_and_one_repair_round_suffices() {
+    for weights in [[3.0, 1.0], [1.0, 1.0]] {
+        let j = job(48, &weights);
+        let bound = RangeBound::new(&j.grid, &j.sampled, j.settings.step, j.settings.ert, 4.0);
+        for (az, el, p) in [
+            (0.0, 0.0, Projection::Orthographic),
+            (41.0, 17.0, Projection::Orthographic),
+            (-70.0, 30.0, Projection::Perspective),
+        ] {
+            let c = cam(&j, az, el, p);
+            let (reference, _) = render_reference(&j, &c);
+            for predictor in PREDICTORS {
+                j.forget_previous();
+                for threshold in [0.95, 0.6] {
+                    let opts = FrameOptions {
+                        cull_threshold: threshold,
+                        ..verified(predictor, 1)
+                    };
+                    let what = format!("{predictor:?} {weights:?} {az},{el} at {threshold}");
+                    let (img, st) = render_frame(&j, Some(&bound), &c, &opts).unwrap();
+                    assert_conservative(&reference, &img, threshold, &what);
+                    let b = st.bricks;
+                    assert!(b.repaired <= b.visible, "{what}: {b:?}");
+                    assert_eq!(
+                        b.culled + b.visible,
+                        b.non_empty - off_screen(&j, &c),
+                        "{what}"
+                    );
+                    assert!(st.verified, "{what}");
+                    assert_eq!(st.predictor, Some(predictor.name()), "{what}");
+                    match predictor {
+                        Predictor::Nothing => assert_eq!(b.repaired, 0, "{what}"),
+                        // Everything that is rendered was culled first, then repaired.
+                        Predictor::Everything => assert_eq!(b.repaired, b.visible, "{what}"),
+                        _ => {}
+                    }
+                    let again = second_round(&j, &c, &st, threshold);
+                    assert!(again.failing.is_empty(), "{what}: {again:?}");
+                }
+            }
+        }
+    }
+}
+
+/// Non-empty bricks whose footprint misses the image.
+fn off_screen(j: &RenderJob, c: &Camera) -> usize {
+    let b = FrameBricks::new(&j.volume, &j.grid, &j.sampled, &j.tf.weights, c);
+    j.grid.len() - b.empty - b.order.len()
+}
+
+#[test]
+fn bad_predictors_are_repaired_and_good_ones_cull() {
+    // The skull shell hides the inside at weights (3, 1).
+    let j = job(48, &[3.0, 1.0]);
+    let c = cam(&j, 30.0, 20.0, Projection::Orthographic);
+    let (reference, _) = render_reference(&j, &c);
+    let run = |p| render_frame(&j, None, &c, &verified(p, 1)).unwrap();
+    let (_, everything) = run(Predictor::Everything);
+    assert!(everything.bricks.repaired > 0);
+    let (img, random) = run(Predictor::Random(5));
+    assert_conservative(&reference, &img, 0.95, "random");
+    assert!(random.bricks.repaired > 0, "{:?}", random.bricks);
+    let (_, proxy) = run(Predictor::Proxy);
+    assert!(proxy.bricks.culled > 0, "{:?}", proxy.bricks);
+    // What a predictor renders and repairs, the verification keeps honest: nothing a
+    // predictor culls correctly is rendered, so none renders more than all there is.
+    let (_, exact) = render_frame(
+        &j,
+        None,
+        &c,
+        &FrameOptions {
+            cull: CullMode::Exact,
+            ..FrameOptions::default()
+        },
+    )
+    .unwrap();
+    assert!(exact.bricks.culled > 0);
+    eprintln!(
+        "rendered: exact {}, proxy {} ({} repaired), random {} ({} repaired)",
+        exact.bricks.visible,
+        proxy.bricks.visible,
+        proxy.bricks.repaired,
+        random.bricks.visible,
+        random.bricks.repaired
+    );
+}
+
+#[test]
+fn verified_frame_is_identical_for_any_rank_count() {
+    let j = job(40, &[2.0, 1.0]);
+    for (az, el, p) in [
+        (30.0, 20.0, Projection::Orthographic),
+        (-60.0, 10.0, Projection::Perspective),
+    ] {
+        let c = cam(&j, az, el, p);
+        for predictor in [
+            Predictor::Proxy,
+            Predictor::Everything,
+            Predictor::Random(3),
+        ] {
+            let (base, base_st) = render_frame(&j, None, &c, &verified(predictor, 1)).unwrap();
+            for (ranks, replicas, curve) in [
+                (2, 1, Curve::Hilbert),
+                (3, 1, Curve::Z),
+                (7, 1, Curve::Hilbert),
+                (4, 2, Curve::Hilbert),
+            ] {
+                let opts = FrameOptions {
+                    replicas,
+                    curve,
+                    ..verified(predictor, ranks)
+                };
+                let what = format!("{predictor:?} {az},{el} {ranks} ranks {replicas} replicas");
+                let (img, st) = render_frame(&j, None, &c, &opts).unwrap();
+                assert_eq!(img.max_abs_diff(&base), Some(0.0), "{what}");
+                assert_eq!(st.bricks, base_st.bricks, "{what}");
+                let rendered: usize = st.ranks.iter().map(|r| r.bricks_rendered).sum();
+                assert_eq!(
+                    rendered, st.bricks.visible,
+                    "{what}: each brick rendered once"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn verify_repairs_pof_set_and_keeps_pof_images() {
+    let j = job(48, &[3.0, 1.0]);
+    let bound = RangeBound::new(&j.grid, &j.sampled, j.settings.step, j.settings.ert, 4.0);
+    let c = cam(&j, 10.0, 35.0, Projection::Orthographic);
+    let (reference, _) = render_reference(&j, &c);
+    for mode in [CullMode::Pof, CullMode::PofSet] {
+        let plain = FrameOptions {
+            cull: mode,
+            ..FrameOptions::default()
+        };
+        let (a, sa) = render_frame(&j, Some(&bound), &c, &plain).unwrap();
+        let (b, sb) = render_frame(
+            &j,
+            Some(&bound),
+            &c,
+            &FrameOptions {
+                verify: true,
+                ..plain
+            },
+        )
+        .unwrap();
+        assert_conservative(&reference, &b, 0.95, &format!("{mode:?} verified"));
+        assert_eq!(sb.cull, Some(mode));
+        assert!(sb.verified && !sa.verified);
+        assert_eq!(sa.bricks.repaired, 0);
+        // A bound culls nothing that shows: verification repairs nothing, the same image.
+        if mode == CullMode::Pof {
+            assert_eq!(sb.bricks.repaired, 0);
+            assert_eq!(a.max_abs_diff(&b), Some(0.0));
+        }
+    }
+}
+
+#[test]
+fn previous_predictor_follows_an_orbit() {
+    let j = job(48, &[3.0, 1.0]);
+    j.forget_previous();
+    let mut last: Option<FrameStats> = None;
+    for k in 0..4 {
+        let c = cam(
+            &j,
+            20.0 + 3.0 * f64::from(k),
+            15.0,
+            Projection::Orthographic,
+        );
+        let (reference, _) = render_reference(&j, &c);
+        let (img, st) = render_frame(&j, None, &c, &verified(Predictor::Previous, 2)).unwrap();
+        assert_conservative(&reference, &img, 0.95, &format!("orbit frame {k}"));
+        if let Some(prev) = &last {
+            // A few degrees on, last frame's set is nearly right.
+            assert!(
+                st.bricks.repaired * 4 <= st.bricks.visible,
+                "frame {k}: {:?} after {:?}",
+                st.bricks,
+                prev.bricks
+            );
+        }
+        last = Some(st);
+    }
+}
+
+#[test]
+fn pof_predictor_without_pofs_is_an_error() {
+    let j = job(16, &[1.0, 1.0]);
+    let c = cam(&j, 0.0, 0.0, Projection::Orthographic);
+    let e = render_frame(&j, None, &c, &verified(Predictor::Pof, 1)).unwrap_err();
+    assert!(e.to_string().contains("predictor pof"), "{e}");
+    assert!(!e.to_string().contains("--"), "{e}");
+}
+
+#[test]
+fn predictor_names_round_trip() {
+    for p in PREDICTORS {
+        let text = match p {
+            Predictor::Random(s) => format!("random:{s}"),
+            _ => p.name().to_owned(),
+        };
+        assert_eq!(text.parse::<Predictor>(), Ok(p));
+    }
+    assert!("bogus".parse::<Predictor>().unwrap_err().contains("proxy"));
+    assert!("random:x".parse::<Predictor>().is_err());
+}
+
+#[test]
+fn proxy_termination_is_where_a_uniform_slab_reaches_the_depth() {
+    let j = job(32, &[1.0, 1.0]);
+    let proxy = Proxy::new(&j.volume, &j.sampled);
+    let n: usize = proxy.cells().iter().product();
+    let ext = vec![0.5f32; n];
+    // Along +x from outside: enters at t = 2, reaches depth 1 after 2 more.
+    let ray = crate::render::IndexRay {
+        o: [-2.0, 5.0, 5.0],
+        d: [1.0, 0.0, 0.0],
+        dir: [1.0, 0.0, 0.0],
+    };
+    let t = proxy.termination(&ext, &ray, 1.0);
+    assert!((t - 4.0).abs() < 1e-4, "{t}");
+    assert!(proxy.termination(&vec![0.0; n], &ray, 1.0).is_infinite());
+}
