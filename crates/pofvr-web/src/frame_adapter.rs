@@ -13,11 +13,12 @@ pub use pofvr::cull::CullMode;
 pub use pofvr::frame::{BrickCounts, FrameOptions, FrameStats, RankStats};
 
 /// Every cull mode, in the order the page lists them.
-pub const CULL_MODES: [CullMode; 4] = [
+pub const CULL_MODES: [CullMode; 5] = [
     CullMode::None,
     CullMode::Pof,
     CullMode::PofSet,
     CullMode::Exact,
+    CullMode::Verified,
 ];
 
 /// What changes per frame besides the camera and the options: the look of the volume.

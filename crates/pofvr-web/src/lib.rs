@@ -28,10 +28,10 @@
 //! `/api/frame` parameters, all optional: `az`, `el` (degrees; `el` in [-90, 90]), `zoom`
 //! (1 fits the volume, in [0.1, 20]), `w`, `h` (1..=2048), `proj` (`ortho` | `persp`),
 //! `weights` (comma-separated, one per basis, each in [0, 100]), `threshold` (in
-//! [0.01, 1]), `cull` (`none` | `pof` | `pof-set` | `exact`), `shade` and `overlay` (`0` |
+//! [0.01, 1]), `cull` (`none` | `pof` | `pof-set` | `exact` | `verified`), `shade` and `overlay` (`0` |
 //! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). An invalid, unknown or
 //! repeated parameter is answered `400` with a plain-text message. While the POFs are
-//! `stale` the POF modes render as `exact` ([`tf_api::cull_for`]), and the stats header
+//! `stale` the POF modes render as `verified` ([`tf_api::cull_for`]), and the stats header
 //! says so: `cull` as rendered, `cull_requested`, `pofs`, and `family_version`. Unless
 //! [`ViewerOptions::loopback_hosts_only`] is off, a `Host` other than a loopback name gets
 //! `403`.

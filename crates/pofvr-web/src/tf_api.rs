@@ -56,11 +56,13 @@ pub enum PofState {
 
 /// The cull mode a frame asking for `asked` renders with. POFs for other bases bound the
 /// wrong opacity and would cull visible bricks, so with [`PofState::Stale`] the POF modes
-/// render as `exact`, which needs no POFs and is always right.
+/// render as `verified`: its proxy predictor needs no POFs, and verifying the prediction
+/// while compositing (and repairing what it got wrong) keeps the threshold rule whatever
+/// the family.
 #[must_use]
 pub fn cull_for(asked: CullMode, pofs: PofState) -> CullMode {
     if asked.needs_pofs() && pofs == PofState::Stale {
-        CullMode::Exact
+        CullMode::Verified
     } else {
         asked
     }

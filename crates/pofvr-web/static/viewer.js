@@ -138,7 +138,7 @@
     $('fig-ranks').textContent = s.ranks;
     $('fig-visible').textContent = s.bricks.visible;
     $('fig-culled').textContent = s.bricks.culled;
-    // Stale POFs bound other bases: the server culls exactly instead, and says so.
+    // Stale POFs bound other bases: the server culls with `verified` instead, and says so.
     const fallback = s.cull_requested && s.cull_requested !== s.cull;
     const note = $('culling-note');
     if (fallback) {

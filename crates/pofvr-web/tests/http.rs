@@ -292,7 +292,7 @@ async fn pof_modes_render_when_the_viewer_has_bounds() {
     let info: serde_json::Value = serde_json::from_slice(&get(&v, "/api/info").await.body).unwrap();
     assert_eq!(
         info["cull_modes_available"],
-        serde_json::json!(["none", "pof", "pof-set", "exact"])
+        serde_json::json!(["none", "pof", "pof-set", "exact", "verified"])
     );
     for mode in ["pof", "pof-set"] {
         let a = get(&v, &format!("/api/frame?w=32&h=32&cull={mode}")).await;
@@ -309,7 +309,7 @@ async fn info_names_the_bases_and_the_page_is_served() {
     assert_eq!(info["bases"][1]["name"], "bone");
     assert_eq!(
         info["cull_modes_available"],
-        serde_json::json!(["none", "exact"])
+        serde_json::json!(["none", "exact", "verified"])
     );
     let page = get(&v, "/").await;
     assert!(page.content_type.starts_with("text/html") && page.text().contains("/viewer.js"));

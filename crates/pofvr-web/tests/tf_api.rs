@@ -233,7 +233,7 @@ async fn the_family_route_takes_a_mebibyte_and_the_others_keep_their_limit() {
 }
 
 #[tokio::test]
-async fn stale_pofs_render_the_pof_modes_as_exact_until_the_bases_come_back() {
+async fn stale_pofs_render_the_pof_modes_as_verified_until_the_bases_come_back() {
     let v = viewer_of(scene(32).with_range_bound(4.0));
     assert_eq!(get(&v, "/api/pofs").await.json()["state"], "match");
     let pof = frame(&v, "cull=pof").await;
@@ -242,21 +242,21 @@ async fn stale_pofs_render_the_pof_modes_as_exact_until_the_bases_come_back() {
 
     let a = post_tf(&v, &reshaped()).await.json();
     assert_eq!(a["pofs"], "stale");
-    assert_eq!(a["pof_renders_as"], "exact");
+    assert_eq!(a["pof_renders_as"], "verified");
     let info = get(&v, "/api/info").await.json();
     assert_eq!(info["pofs"], "stale");
     assert!(info["cull_modes_available"]
         .as_array()
         .unwrap()
         .contains(&"pof".into()));
-    let exact = frame(&v, "cull=exact").await;
+    let verified = frame(&v, "cull=verified").await;
     for mode in ["pof", "pof-set"] {
         let f = frame(&v, &format!("cull={mode}")).await;
         let s = f.stats.as_ref().unwrap();
-        assert_eq!(s["cull"], "exact", "{mode}");
+        assert_eq!(s["cull"], "verified", "{mode}");
         assert_eq!(s["cull_requested"], mode);
         assert_eq!(s["pofs"], "stale");
-        assert_eq!(f.body, exact.body, "{mode} renders as exact");
+        assert_eq!(f.body, verified.body, "{mode} renders as verified");
     }
 
     // New colours and weights on the old bases: the POFs bound them again.

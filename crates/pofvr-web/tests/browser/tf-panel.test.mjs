@@ -176,7 +176,7 @@ test('the panel edits the family; the saved family renders the same with pofvr r
   }
 });
 
-test('stale POFs cull exactly until rebuilt; the panel screenshot; move-to-frame time at 512²', async () => {
+test('stale POFs cull verified until rebuilt; the panel screenshot; move-to-frame time at 512²', async () => {
   const dir = mkdtempSync(path.join(tmpdir(), 'pofvr-tf-'));
   const pof = path.join(dir, 'head.pof');
   const built = spawnSync(bin, ['--quiet', 'pof', 'build', VOLUME, '-o', pof], { encoding: 'utf8' });
@@ -193,9 +193,9 @@ test('stale POFs cull exactly until rebuilt; the panel screenshot; move-to-frame
     const stale = await settledFrame(page, pofFrame.seq);
     assert.equal(stale.stats.pofs, 'stale');
     assert.equal(stale.stats.cull_requested, 'pof');
-    assert.equal(stale.stats.cull, 'exact', 'stale POFs are not culled with');
+    assert.equal(stale.stats.cull, 'verified', 'stale POFs are not culled with');
     assert.match(await page.textContent('#tf-pofs'), /other bases/);
-    assert.match(await page.textContent('#culling-note'), /pof culls as exact/);
+    assert.match(await page.textContent('#culling-note'), /pof culls as verified/);
 
     // Rebuild: progress while it runs, frames meanwhile, then POF culling again.
     await page.click('#tf-rebuild');
