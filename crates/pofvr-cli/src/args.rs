@@ -46,8 +46,8 @@ pub(crate) enum Command {
 pub(crate) struct VolumeArgs {
     /// Volume file (.nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or raw with --dims/--dtype),
     /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8), `phantom:smooth-head:N`
-    /// (its edges blended over a few voxels, f32, a coloured family) or `phantom:ml:N`
-    /// (Marschner–Lobb, f32).
+    /// (its edges blended over a few voxels, f32, a coloured family), `phantom:ml:N`
+    /// (Marschner–Lobb, f32) or `phantom:body:XxYxZ` (a CT torso in HU, i16, any grid).
     pub(crate) volume: String,
     /// Raw files: voxel counts X,Y,Z.
     #[arg(long, value_name = "X,Y,Z")]

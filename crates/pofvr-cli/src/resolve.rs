@@ -35,8 +35,9 @@ pub(crate) fn parse_list<T: std::str::FromStr>(
     Ok(v)
 }
 
-/// A phantom named `phantom:KIND:N`, if `spec` is one.
-pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, usize)>> {
+/// A phantom named `phantom:KIND:N` (or `phantom:body:XxYxZ`), if `spec` is one: its kind
+/// and grid.
+pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, [usize; 3])>> {
     let Some(rest) = spec.strip_prefix("phantom:") else {
         return Ok(None);
     };
@@ -46,22 +47,37 @@ pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, usize)>> {
         .unwrap_or("head")
         .parse()
         .map_err(|e: String| anyhow!("{spec}: {e}"))?;
-    let n = match parts.next() {
-        Some(n) => n
-            .parse::<usize>()
-            .map_err(|_| anyhow!("{spec}: size {n:?} is not a number"))?,
-        None => 128,
+    let dims = match parts.next() {
+        Some(n) if n.contains(['x', 'X']) => {
+            if !kind.any_grid() {
+                bail!("{spec}: this phantom is a cube: give one size N (only phantom:body takes XxYxZ)");
+            }
+            let d: Vec<usize> = n
+                .split(['x', 'X'])
+                .map(|d| d.parse::<usize>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| anyhow!("{spec}: size {n:?} is not XxYxZ"))?;
+            if d.len() != 3 {
+                bail!("{spec}: size {n:?} is not XxYxZ");
+            }
+            [d[0], d[1], d[2]]
+        }
+        Some(n) => {
+            [n.parse::<usize>()
+                .map_err(|_| anyhow!("{spec}: size {n:?} is not a number"))?; 3]
+        }
+        None => [128; 3],
     };
-    if !(2..=2048).contains(&n) {
+    if dims.iter().any(|n| !(2..=2048).contains(n)) {
         bail!("{spec}: phantom size must be 2..=2048");
     }
-    Ok(Some((kind, n)))
+    Ok(Some((kind, dims)))
 }
 
 /// Opens the volume named by the flags.
 pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
-    if let Some((kind, n)) = phantom_spec(&a.volume)? {
-        return Ok(kind.generate(n));
+    if let Some((kind, dims)) = phantom_spec(&a.volume)? {
+        return Ok(kind.generate_dims(dims));
     }
     let path = Path::new(&a.volume);
     let raw = match (&a.dims, &a.dtype) {

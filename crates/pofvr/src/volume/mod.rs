@@ -7,6 +7,7 @@
 //! Coordinates: voxel `(i, j, k)` sits at index-space point `(i, j, k)` and at world point
 //! `(i·sx, j·sy, k·sz)`. The sampled domain is the box `[0, dims-1]` in index space.
 
+mod body;
 mod error;
 mod header;
 pub mod metaimage;
@@ -17,6 +18,8 @@ pub mod raw;
 mod storage;
 #[cfg(test)]
 mod test;
+#[cfg(test)]
+mod test_body;
 
 use std::path::Path;
 

@@ -1,0 +1,76 @@
+//! End-to-end tests of the data inputs: the body phantom, DICOM series, Zarr stores and
+//! `pofvr convert`.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn pofvr(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pofvr"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run pofvr")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Runs `args`, expects a failure whose message has every one of `parts`, and no file left
+/// in `dir` other than those in `keep`.
+fn expect_error(dir: &Path, args: &[&str], parts: &[&str], keep: &[&str]) {
+    let o = pofvr(args, dir);
+    assert!(!o.status.success(), "{args:?} should fail");
+    let e = stderr(&o);
+    for p in parts {
+        assert!(e.contains(p), "{args:?}: error {e:?} lacks {p:?}");
+    }
+    assert!(!e.contains("panicked"), "{args:?} panicked: {e}");
+    let mut left: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| !keep.contains(&n.as_str()))
+        .collect();
+    left.sort();
+    assert!(left.is_empty(), "{args:?} left {left:?}");
+}
+
+#[test]
+fn the_body_phantom_takes_any_grid_and_renders_with_its_family() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(&["info", "phantom:body:40x32x72"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("40 × 32 × 72"), "{out}");
+    assert!(out.contains("i16"), "{out}");
+    let o = pofvr(
+        &[
+            "render",
+            "phantom:body:40x40x72",
+            "--size",
+            "48x48",
+            "--shade",
+            "-o",
+            "b.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("b.png").exists());
+    expect_error(
+        dir.path(),
+        &["info", "phantom:head:8x8x8"],
+        &["phantom:head:8x8x8", "cube"],
+        &["b.png"],
+    );
+    expect_error(
+        dir.path(),
+        &["info", "phantom:body:8x8"],
+        &["phantom:body:8x8", "XxYxZ"],
+        &["b.png"],
+    );
+}
