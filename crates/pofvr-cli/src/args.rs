@@ -45,7 +45,7 @@ pub(crate) enum Command {
 #[derive(Args, Debug, Clone)]
 pub(crate) struct VolumeArgs {
     /// Volume file (.nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or raw with --dims/--dtype),
-    /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8), `phantom:smooth-head:N`
+    /// a folder of DICOM slices (one series, see --series), or a generated phantom: `phantom:head:N` (Shepp–Logan, u8), `phantom:smooth-head:N`
     /// (its edges blended over a few voxels, f32, a coloured family), `phantom:ml:N`
     /// (Marschner–Lobb, f32) or `phantom:body:XxYxZ` (a CT torso in HU, i16, any grid).
     pub(crate) volume: String,
@@ -71,6 +71,9 @@ pub(crate) struct VolumeArgs {
     /// > default: 16
     #[arg(long, default_value_t = 16)]
     pub(crate) brick: usize,
+    /// DICOM folders: the SeriesInstanceUID to read when the folder holds several.
+    #[arg(long, value_name = "UID")]
+    pub(crate) series: Option<String>,
 }
 
 /// The transfer-function family.

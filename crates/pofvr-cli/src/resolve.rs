@@ -6,7 +6,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use pofvr::render::families;
 use pofvr::render::{Camera, Projection, RenderSettings, TransferFunction};
 use pofvr::volume::phantom::Phantom;
-use pofvr::volume::{RawSpec, Volume};
+use pofvr::volume::{OpenOptions, RawSpec, Volume};
 
 use crate::args::{TfArgs, ViewArgs, VolumeArgs};
 
@@ -101,7 +101,11 @@ pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
         }
         _ => bail!("raw volumes need both --dims X,Y,Z and --dtype u8|u16|i16|f32"),
     };
-    Ok(Volume::open(path, raw.as_ref())?)
+    let opts = OpenOptions {
+        raw,
+        series: a.series.clone(),
+    };
+    Ok(Volume::open_with(path, &opts)?)
 }
 
 /// The family: the file, the phantom's built-in one, or `None` when neither applies.

@@ -74,3 +74,50 @@ fn the_body_phantom_takes_any_grid_and_renders_with_its_family() {
         &["b.png"],
     );
 }
+
+#[test]
+fn a_dicom_folder_renders_and_several_series_need_series() {
+    use pofvr::volume::dicom_write::{write_series, SeriesOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let vol = pofvr::volume::phantom::Phantom::Body.generate_dims([32, 32, 40]);
+    let ct = dir.path().join("ct");
+    let opts = SeriesOptions {
+        intercept: -1024,
+        ..SeriesOptions::default()
+    };
+    write_series(&vol, &ct, &opts).unwrap();
+    let o = pofvr(&["info", "ct"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("32 × 32 × 40") && out.contains("i16"), "{out}");
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/ct-chest-skin-bone.json");
+    let tf = tf.to_str().unwrap();
+    let o = pofvr(
+        &[
+            "render", "ct", "--tf", tf, "--size", "32x32", "-o", "ct.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    // A second series in the same folder: an error listing both, then --series picks one.
+    let other = SeriesOptions {
+        series_uid: "1.2.3.99".into(),
+        ..SeriesOptions::default()
+    };
+    let tmp = dir.path().join("tmp");
+    write_series(&vol, &tmp, &other).unwrap();
+    for e in std::fs::read_dir(&tmp).unwrap() {
+        let p = e.unwrap().path();
+        let name = format!("b_{}", p.file_name().unwrap().to_string_lossy());
+        std::fs::rename(&p, ct.join(name)).unwrap();
+    }
+    std::fs::remove_dir(&tmp).unwrap();
+    expect_error(
+        dir.path(),
+        &["info", "ct"],
+        &["ct", "SeriesInstanceUID", "1.2.3.99", "2 series"],
+        &["ct", "ct.png"],
+    );
+    let o = pofvr(&["info", "ct", "--series", "1.2.3.99"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+}

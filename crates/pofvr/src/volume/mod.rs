@@ -8,6 +8,8 @@
 //! `(i·sx, j·sy, k·sz)`. The sampled domain is the box `[0, dims-1]` in index space.
 
 mod body;
+pub mod dicom;
+pub mod dicom_write;
 mod error;
 mod header;
 pub mod metaimage;
@@ -20,6 +22,8 @@ mod storage;
 mod test;
 #[cfg(test)]
 mod test_body;
+#[cfg(test)]
+mod test_dicom;
 
 use std::path::Path;
 
@@ -201,6 +205,15 @@ impl VoxelData {
     }
 }
 
+/// How to open a volume beyond its path (see [`Volume::open_with`]).
+#[derive(Clone, Debug, Default)]
+pub struct OpenOptions {
+    /// The layout of a headerless file; `None` chooses the reader by extension.
+    pub raw: Option<RawSpec>,
+    /// The SeriesInstanceUID to read from a DICOM folder holding several.
+    pub series: Option<String>,
+}
+
 /// A dense scalar volume.
 #[derive(Debug)]
 pub struct Volume {
@@ -265,9 +278,27 @@ impl Volume {
     /// # Errors
     /// Any [`VolumeError`] of the reader, each naming the file.
     pub fn open(path: &Path, raw: Option<&RawSpec>) -> Result<Self, VolumeError> {
+        Self::open_with(
+            path,
+            &OpenOptions {
+                raw: raw.cloned(),
+                ..OpenOptions::default()
+            },
+        )
+    }
+
+    /// Opens a volume as [`Volume::open`] does, and also a folder of DICOM slices (one
+    /// series: [`OpenOptions::series`] picks it when there are several).
+    ///
+    /// # Errors
+    /// Any [`VolumeError`] of the reader, each naming the file.
+    pub fn open_with(path: &Path, opts: &OpenOptions) -> Result<Self, VolumeError> {
         let name = path.to_string_lossy().to_ascii_lowercase();
-        if let Some(spec) = raw {
+        if let Some(spec) = &opts.raw {
             return raw::open(path, spec);
+        }
+        if path.is_dir() && dicom::is_series_dir(path) {
+            return dicom::open(path, opts.series.as_deref());
         }
         if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
             nrrd::open(path)
