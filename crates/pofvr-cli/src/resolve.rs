@@ -76,6 +76,12 @@ pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, [usize; 3])>> 
 
 /// Opens the volume named by the flags.
 pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
+    volume_for(a, None)
+}
+
+/// Opens the volume named by the flags; an OME-Zarr image without `--level` is read at the
+/// finest level no larger than `max_dim` voxels on any axis, when given.
+pub(crate) fn volume_for(a: &VolumeArgs, max_dim: Option<usize>) -> Result<Volume> {
     if let Some((kind, dims)) = phantom_spec(&a.volume)? {
         return Ok(kind.generate_dims(dims));
     }
@@ -104,6 +110,8 @@ pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
     let opts = OpenOptions {
         raw,
         series: a.series.clone(),
+        level: a.level,
+        max_dim,
     };
     Ok(Volume::open_with(path, &opts)?)
 }

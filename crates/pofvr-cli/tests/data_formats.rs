@@ -121,3 +121,80 @@ fn a_dicom_folder_renders_and_several_series_need_series() {
     let o = pofvr(&["info", "ct", "--series", "1.2.3.99"], dir.path());
     assert!(o.status.success(), "{}", stderr(&o));
 }
+
+#[test]
+fn convert_writes_ome_zarr_that_every_command_opens() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(
+        &["convert", "phantom:body:80x72x150", "body.zarr", "--quiet"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("body.zarr/zarr.json").is_file());
+    assert!(dir.path().join("body.zarr/1/zarr.json").is_file());
+    let info = |args: &[&str]| {
+        let o = pofvr(args, dir.path());
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        stdout(&o)
+    };
+    let full = info(&["info", "body.zarr"]);
+    assert!(
+        full.contains("80 × 72 × 150") && full.contains("i16"),
+        "{full}"
+    );
+    // The same voxels as the phantom: the same histogram lines.
+    let phantom = info(&["info", "phantom:body:80x72x150"]);
+    let hist = |s: &str| {
+        s.lines()
+            .filter(|l| l.contains('%'))
+            .map(str::to_string)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(hist(&full), hist(&phantom));
+    let half = info(&["info", "body.zarr", "--level", "1"]);
+    assert!(half.contains("40 × 36 × 75"), "{half}");
+    let arr = info(&["info", "body.zarr/1"]);
+    assert!(arr.contains("40 × 36 × 75"), "{arr}");
+    // render picks the level from the image size: a 32² image needs no more than 64 voxels.
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/ct-chest-skin-bone.json");
+    let o = pofvr(
+        &[
+            "render",
+            "body.zarr",
+            "--tf",
+            tf.to_str().unwrap(),
+            "--size",
+            "32x32",
+            "-o",
+            "z.png",
+            "--stats",
+            "s.json",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Level 2 (20×18×38) is the finest with every axis ≤ 64: 2×2×3 bricks of 16³.
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("s.json")).unwrap()).unwrap();
+    assert_eq!(stats["bricks"]["total"], 12, "{stats}");
+    // An existing output is refused; a bad store is a clear error.
+    expect_error(
+        dir.path(),
+        &["convert", "phantom:body:8x8x8", "body.zarr"],
+        &["body.zarr", "exists"],
+        &["body.zarr", "z.png", "s.json"],
+    );
+    std::fs::remove_file(dir.path().join("body.zarr/0/c/0/0/0")).unwrap();
+    expect_error(
+        dir.path(),
+        &["info", "body.zarr"],
+        &["body.zarr/0/c/0/0/0", "missing"],
+        &["body.zarr", "z.png", "s.json"],
+    );
+    expect_error(
+        dir.path(),
+        &["convert", "phantom:body:8x8x8", "nodir/x.zarr"],
+        &["nodir"],
+        &["body.zarr", "z.png", "s.json"],
+    );
+}

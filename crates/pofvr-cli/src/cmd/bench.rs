@@ -209,6 +209,7 @@ fn self_describing_volume(spec: &str) -> Result<pofvr::Volume> {
         header_bytes: 0,
         brick: 16,
         series: None,
+        level: None,
     })
 }
 
