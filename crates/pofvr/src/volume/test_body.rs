@@ -60,7 +60,7 @@ fn body_is_deterministic_and_independent_of_threads() {
         _ => panic!("body phantom must be i16"),
     };
     assert_eq!(slice(a), slice(b));
-    assert_eq!(slice(a), slice(&one));
+    assert_eq!(slice(a), slice(one));
     // Seeded noise: neighbouring air voxels differ, but only by a few HU.
     let s = slice(a);
     assert_ne!(s[0], s[1]);
@@ -97,7 +97,7 @@ fn body_tissues_have_their_hounsfield_units() {
             }
         }
     }
-    assert!(lo >= -1024.0 && lo < -990.0, "min {lo}");
+    assert!((-1024.0..-990.0).contains(&lo), "min {lo}");
     assert!(hi > 600.0 && hi <= 3071.0, "max {hi}");
     let (bone, air) = (bone as f64 / n as f64, air as f64 / n as f64);
     assert!((0.002..0.05).contains(&bone), "bone share {bone}");

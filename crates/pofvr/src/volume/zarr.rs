@@ -345,7 +345,7 @@ fn write_levels<T: Voxel + Element + ElementOwned + Default>(
             zarrs::array::FillValue::new(vec![0u8; std::mem::size_of::<T>()]),
         )
         .dimension_names(["z", "y", "x"].into())
-        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(3.into(), false))])
+        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(3, false))])
         .build(store.clone(), &format!("/{l}"))
         .map_err(|e| err(&e))?;
         array.store_metadata().map_err(|e| err(&e))?;
