@@ -39,15 +39,18 @@ pub(crate) enum Command {
     /// Plenoptic Opacity Functions: build, inspect and check .pof files.
     #[command(subcommand)]
     Pof(crate::cmd::pof::PofCommand),
+    /// Write any input as an OME-Zarr (Zarr v3) multiscale image, slab by slab.
+    Convert(crate::cmd::convert::ConvertArgs),
 }
 
 /// Where the volume comes from.
 #[derive(Args, Debug, Clone)]
 pub(crate) struct VolumeArgs {
     /// Volume file (.nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or raw with --dims/--dtype),
-    /// or a generated phantom: `phantom:head:N` (Shepp–Logan, u8), `phantom:smooth-head:N`
-    /// (its edges blended over a few voxels, f32, a coloured family) or `phantom:ml:N`
-    /// (Marschner–Lobb, f32).
+    /// a folder of DICOM slices (one series, see --series), a Zarr v3 array or OME-Zarr
+    /// image (store.zarr, store.zarr/path/to/array; see --level), or a generated phantom: `phantom:head:N` (Shepp–Logan, u8), `phantom:smooth-head:N`
+    /// (its edges blended over a few voxels, f32, a coloured family), `phantom:ml:N`
+    /// (Marschner–Lobb, f32) or `phantom:body:XxYxZ` (a CT torso in HU, i16, any grid).
     pub(crate) volume: String,
     /// Raw files: voxel counts X,Y,Z.
     #[arg(long, value_name = "X,Y,Z")]
@@ -71,6 +74,13 @@ pub(crate) struct VolumeArgs {
     /// > default: 16
     #[arg(long, default_value_t = 16)]
     pub(crate) brick: usize,
+    /// DICOM folders: the SeriesInstanceUID to read when the folder holds several.
+    #[arg(long, value_name = "UID")]
+    pub(crate) series: Option<String>,
+    /// OME-Zarr images: the level to read (0 the finest).
+    /// > default: the finest level (render: the finest no larger than twice the image)
+    #[arg(long, value_name = "N")]
+    pub(crate) level: Option<usize>,
 }
 
 /// The transfer-function family.

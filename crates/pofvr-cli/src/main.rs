@@ -191,6 +191,7 @@ fn run(cli: args::Cli) -> anyhow::Result<()> {
         args::Command::Bench(args::BenchCommand::Frame(a)) => cmd::bench::frame(&a, &ui),
         args::Command::Bench(args::BenchCommand::Pof(a)) => cmd::pof::bench(&a, &ui),
         args::Command::Pof(c) => cmd::pof::run(&c, &ui),
+        args::Command::Convert(a) => cmd::convert::run(&a, &ui),
     }
 }
 

@@ -6,7 +6,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use pofvr::render::families;
 use pofvr::render::{Camera, Projection, RenderSettings, TransferFunction};
 use pofvr::volume::phantom::Phantom;
-use pofvr::volume::{RawSpec, Volume};
+use pofvr::volume::{OpenOptions, RawSpec, Volume};
 
 use crate::args::{TfArgs, ViewArgs, VolumeArgs};
 
@@ -35,8 +35,9 @@ pub(crate) fn parse_list<T: std::str::FromStr>(
     Ok(v)
 }
 
-/// A phantom named `phantom:KIND:N`, if `spec` is one.
-pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, usize)>> {
+/// A phantom named `phantom:KIND:N` (or `phantom:body:XxYxZ`), if `spec` is one: its kind
+/// and grid.
+pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, [usize; 3])>> {
     let Some(rest) = spec.strip_prefix("phantom:") else {
         return Ok(None);
     };
@@ -46,22 +47,43 @@ pub(crate) fn phantom_spec(spec: &str) -> Result<Option<(Phantom, usize)>> {
         .unwrap_or("head")
         .parse()
         .map_err(|e: String| anyhow!("{spec}: {e}"))?;
-    let n = match parts.next() {
-        Some(n) => n
-            .parse::<usize>()
-            .map_err(|_| anyhow!("{spec}: size {n:?} is not a number"))?,
-        None => 128,
+    let dims = match parts.next() {
+        Some(n) if n.contains(['x', 'X']) => {
+            if !kind.any_grid() {
+                bail!("{spec}: this phantom is a cube: give one size N (only phantom:body takes XxYxZ)");
+            }
+            let d: Vec<usize> = n
+                .split(['x', 'X'])
+                .map(|d| d.parse::<usize>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| anyhow!("{spec}: size {n:?} is not XxYxZ"))?;
+            if d.len() != 3 {
+                bail!("{spec}: size {n:?} is not XxYxZ");
+            }
+            [d[0], d[1], d[2]]
+        }
+        Some(n) => {
+            [n.parse::<usize>()
+                .map_err(|_| anyhow!("{spec}: size {n:?} is not a number"))?; 3]
+        }
+        None => [128; 3],
     };
-    if !(2..=2048).contains(&n) {
+    if dims.iter().any(|n| !(2..=2048).contains(n)) {
         bail!("{spec}: phantom size must be 2..=2048");
     }
-    Ok(Some((kind, n)))
+    Ok(Some((kind, dims)))
 }
 
 /// Opens the volume named by the flags.
 pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
-    if let Some((kind, n)) = phantom_spec(&a.volume)? {
-        return Ok(kind.generate(n));
+    volume_for(a, None)
+}
+
+/// Opens the volume named by the flags; an OME-Zarr image without `--level` is read at the
+/// finest level no larger than `max_dim` voxels on any axis, when given.
+pub(crate) fn volume_for(a: &VolumeArgs, max_dim: Option<usize>) -> Result<Volume> {
+    if let Some((kind, dims)) = phantom_spec(&a.volume)? {
+        return Ok(kind.generate_dims(dims));
     }
     let path = Path::new(&a.volume);
     let raw = match (&a.dims, &a.dtype) {
@@ -85,9 +107,16 @@ pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
         }
         _ => bail!("raw volumes need both --dims X,Y,Z and --dtype u8|u16|i16|f32"),
     };
-    match Volume::open(path, raw.as_ref()) {
+    let is_raw = raw.is_some();
+    let opts = OpenOptions {
+        raw,
+        series: a.series.clone(),
+        level: a.level,
+        max_dim,
+    };
+    match Volume::open_with(path, &opts) {
         // Raw spacing comes from the flag; a header's spacing is the file's own fault.
-        Err(e @ pofvr::volume::VolumeError::BadSpacing { .. }) if raw.is_some() => {
+        Err(e @ pofvr::volume::VolumeError::BadSpacing { .. }) if is_raw => {
             Err(anyhow::Error::new(e).context("--spacing"))
         }
         r => Ok(r?),

@@ -210,6 +210,8 @@ fn self_describing_volume(spec: &str) -> Result<pofvr::Volume> {
         spacing: None,
         header_bytes: 0,
         brick: 16,
+        series: None,
+        level: None,
     })
 }
 

@@ -1,4 +1,5 @@
 pub(crate) mod bench;
+pub(crate) mod convert;
 pub(crate) mod demo;
 pub(crate) mod experiment;
 pub(crate) mod info;

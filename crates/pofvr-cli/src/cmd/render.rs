@@ -132,7 +132,12 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         bail!("--reference compares one frame; leave out --frames");
     }
     let sp = ui.spinner("opening and bricking the volume");
-    let vol = resolve::volume(&a.volume)?;
+    // A multiscale image is read at the finest level that still has about two voxels per
+    // pixel across the image: finer levels only add samples the pixels average away.
+    let max_dim = resolve::size(&a.view.size)
+        .ok()
+        .map(|(w, h)| 2 * w.max(h) as usize);
+    let vol = resolve::volume_for(&a.volume, max_dim)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
     let cam = resolve::camera(&a.view, &vol)?;
     let curve: Curve = a

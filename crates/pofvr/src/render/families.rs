@@ -36,6 +36,17 @@ pub const MARSCHNER_LOBB_JSON: &str = r#"{
   "color": [[0.0, 0.2, 0.4, 1.0], [0.5, 0.9, 0.9, 0.9], [1.0, 1.0, 0.5, 0.2]]
 }"#;
 
+/// Skin and bone for the body phantom's Hounsfield units: the skin a translucent band over
+/// fat and soft tissue (lungs and air clear), bone opaque ivory.
+pub const BODY_JSON: &str = r#"{
+  "bases": [
+    {"name": "skin", "opacity": [[-450, 0.0], [-250, 0.1], [120, 0.1], [180, 0.0]]},
+    {"name": "bone", "opacity": [[160, 0.0], [450, 0.7], [1400, 0.85]]}
+  ],
+  "weights": [1.0, 1.0],
+  "color": [[-1000, 0, 0, 0], [-300, 0.8, 0.45, 0.35], [60, 0.95, 0.7, 0.6], [350, 1.0, 0.95, 0.85], [1400, 1, 1, 1]]
+}"#;
+
 /// The built-in family for a phantom.
 #[must_use]
 pub fn for_phantom(p: crate::volume::phantom::Phantom) -> TransferFunction {
@@ -43,6 +54,7 @@ pub fn for_phantom(p: crate::volume::phantom::Phantom) -> TransferFunction {
         crate::volume::phantom::Phantom::SheppLogan => SHEPP_LOGAN_JSON,
         crate::volume::phantom::Phantom::SmoothHead => SMOOTH_HEAD_JSON,
         crate::volume::phantom::Phantom::MarschnerLobb => MARSCHNER_LOBB_JSON,
+        crate::volume::phantom::Phantom::Body => BODY_JSON,
     };
     TransferFunction::from_json(text, "<built-in>").expect("built-in family is valid")
 }

@@ -68,7 +68,7 @@ pub enum VolumeError {
         why: String,
     },
     /// Extension not recognised and no raw layout given.
-    #[error("{file}: unknown volume format: use .nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, or give a raw file's dimensions and voxel type")]
+    #[error("{file}: unknown volume format: use .nrrd, .nhdr, .mhd, .mha, .nii, .nii.gz, a folder of DICOM slices, a Zarr array or OME-Zarr image, or give a raw file's dimensions and voxel type")]
     UnknownFormat {
         /// The file.
         file: String,

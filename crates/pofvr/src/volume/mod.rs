@@ -7,6 +7,9 @@
 //! Coordinates: voxel `(i, j, k)` sits at index-space point `(i, j, k)` and at world point
 //! `(i·sx, j·sy, k·sz)`. The sampled domain is the box `[0, dims-1]` in index space.
 
+mod body;
+pub mod dicom;
+pub mod dicom_write;
 mod error;
 mod header;
 pub mod metaimage;
@@ -17,6 +20,13 @@ pub mod raw;
 mod storage;
 #[cfg(test)]
 mod test;
+#[cfg(test)]
+mod test_body;
+#[cfg(test)]
+mod test_dicom;
+#[cfg(test)]
+mod test_zarr;
+pub mod zarr;
 
 use std::path::Path;
 
@@ -91,6 +101,8 @@ pub trait Voxel: bytemuck::Pod + Send + Sync + 'static {
     /// Reverses the byte order (for big-endian files).
     #[must_use]
     fn swap_bytes(self) -> Self;
+    /// The nearest stored value to `v` (rounded and clamped for integers).
+    fn from_f32(v: f32) -> Self;
 }
 
 macro_rules! voxel_int {
@@ -104,6 +116,10 @@ macro_rules! voxel_int {
             #[inline]
             fn swap_bytes(self) -> Self {
                 <$t>::swap_bytes(self)
+            }
+            #[inline]
+            fn from_f32(v: f32) -> Self {
+                v.round().clamp(<$t>::MIN as f32, <$t>::MAX as f32) as $t
             }
         }
     };
@@ -121,6 +137,10 @@ impl Voxel for f32 {
     #[inline]
     fn swap_bytes(self) -> Self {
         f32::from_bits(self.to_bits().swap_bytes())
+    }
+    #[inline]
+    fn from_f32(v: f32) -> Self {
+        v
     }
 }
 
@@ -198,6 +218,19 @@ impl VoxelData {
     }
 }
 
+/// How to open a volume beyond its path (see [`Volume::open_with`]).
+#[derive(Clone, Debug, Default)]
+pub struct OpenOptions {
+    /// The layout of a headerless file; `None` chooses the reader by extension.
+    pub raw: Option<RawSpec>,
+    /// The SeriesInstanceUID to read from a DICOM folder holding several.
+    pub series: Option<String>,
+    /// The level of an OME-Zarr multiscale image (0 the finest).
+    pub level: Option<usize>,
+    /// Without a level: the finest OME-Zarr level whose largest dimension is at most this.
+    pub max_dim: Option<usize>,
+}
+
 /// A dense scalar volume.
 #[derive(Debug)]
 pub struct Volume {
@@ -267,9 +300,31 @@ impl Volume {
     /// # Errors
     /// Any [`VolumeError`] of the reader, each naming the file.
     pub fn open(path: &Path, raw: Option<&RawSpec>) -> Result<Self, VolumeError> {
+        Self::open_with(
+            path,
+            &OpenOptions {
+                raw: raw.cloned(),
+                ..OpenOptions::default()
+            },
+        )
+    }
+
+    /// Opens a volume as [`Volume::open`] does, and also a Zarr v3 array or OME-Zarr image
+    /// (a folder with a `zarr.json`) and a folder of DICOM slices (one series:
+    /// [`OpenOptions::series`] picks it when there are several).
+    ///
+    /// # Errors
+    /// Any [`VolumeError`] of the reader, each naming the file.
+    pub fn open_with(path: &Path, opts: &OpenOptions) -> Result<Self, VolumeError> {
         let name = path.to_string_lossy().to_ascii_lowercase();
-        if let Some(spec) = raw {
+        if let Some(spec) = &opts.raw {
             return raw::open(path, spec);
+        }
+        if zarr::is_zarr(path) {
+            return zarr::open(path, opts.level, opts.max_dim);
+        }
+        if path.is_dir() && dicom::is_series_dir(path) {
+            return dicom::open(path, opts.series.as_deref());
         }
         if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
             nrrd::open(path)

@@ -16,6 +16,11 @@ pub enum Phantom {
     SmoothHead,
     /// The Marschner–Lobb test signal (f_M = 6, α = 0.25), stored as f32 in [0, 1].
     MarschnerLobb,
+    /// A CT-like torso in Hounsfield units, stored as i16 (see [`Phantom::generate_dims`]):
+    /// air −1000, skin, fat ≈ −100 and muscle ≈ 50, lungs ≈ −860 with branching vessels,
+    /// heart, liver, spleen and kidneys, the column, ribs and the other bones (cortical
+    /// ≈ 1100, cancellous ≈ 260), with seeded noise. Any grid, not only cubes.
+    Body,
 }
 
 impl std::str::FromStr for Phantom {
@@ -25,8 +30,9 @@ impl std::str::FromStr for Phantom {
             "shepplogan" | "head" => Ok(Phantom::SheppLogan),
             "smoothhead" | "smoothshepplogan" => Ok(Phantom::SmoothHead),
             "marschnerlobb" | "ml" => Ok(Phantom::MarschnerLobb),
+            "body" | "torso" => Ok(Phantom::Body),
             other => Err(format!(
-                "unknown phantom {other:?}, expected shepp-logan (head), smooth-head or marschner-lobb"
+                "unknown phantom {other:?}, expected shepp-logan (head), smooth-head, marschner-lobb or body"
             )),
         }
     }
@@ -127,6 +133,23 @@ impl Ellipsoid {
 }
 
 impl Phantom {
+    /// True for the phantoms that take any grid (`X×Y×Z`); the others are cubes.
+    #[must_use]
+    pub fn any_grid(self) -> bool {
+        self == Phantom::Body
+    }
+
+    /// Generates the phantom on a `dims` grid: the body on exactly that grid (its spacing in
+    /// millimetres, a 400 mm field across x and 700 mm of torso along z); the cubic phantoms
+    /// on `dims[0]`³.
+    #[must_use]
+    pub fn generate_dims(self, dims: [usize; 3]) -> Volume {
+        match self {
+            Phantom::Body => super::body::generate(dims),
+            _ => self.generate(dims[0]),
+        }
+    }
+
     /// Generates the phantom on an `n × n × n` grid with unit spacing.
     ///
     /// # Panics
@@ -134,11 +157,15 @@ impl Phantom {
     #[must_use]
     pub fn generate(self, n: usize) -> Volume {
         let n = n.max(2);
+        if self == Phantom::Body {
+            return super::body::generate([n; 3]);
+        }
         let to_unit = |i: usize| 2.0 * i as f64 / (n - 1) as f64 - 1.0;
         let name = match self {
             Phantom::SheppLogan => format!("shepp-logan phantom {n}³"),
             Phantom::SmoothHead => format!("smooth shepp-logan phantom {n}³"),
             Phantom::MarschnerLobb => format!("marschner-lobb phantom {n}³"),
+            Phantom::Body => unreachable!("generated above"),
         };
         let data = match self {
             Phantom::SheppLogan => {
@@ -201,6 +228,7 @@ impl Phantom {
                 }
                 VoxelData::F32(Voxels::owned(v))
             }
+            Phantom::Body => unreachable!("generated above"),
         };
         Volume::new([n; 3], [1.0; 3], data, name).expect("phantom layout is valid by construction")
     }

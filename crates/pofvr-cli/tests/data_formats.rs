@@ -1,0 +1,200 @@
+//! End-to-end tests of the data inputs: the body phantom, DICOM series, Zarr stores and
+//! `pofvr convert`.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn pofvr(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pofvr"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run pofvr")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Runs `args`, expects a failure whose message has every one of `parts`, and no file left
+/// in `dir` other than those in `keep`.
+fn expect_error(dir: &Path, args: &[&str], parts: &[&str], keep: &[&str]) {
+    let o = pofvr(args, dir);
+    assert!(!o.status.success(), "{args:?} should fail");
+    let e = stderr(&o);
+    for p in parts {
+        assert!(e.contains(p), "{args:?}: error {e:?} lacks {p:?}");
+    }
+    assert!(!e.contains("panicked"), "{args:?} panicked: {e}");
+    let mut left: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| !keep.contains(&n.as_str()))
+        .collect();
+    left.sort();
+    assert!(left.is_empty(), "{args:?} left {left:?}");
+}
+
+#[test]
+fn the_body_phantom_takes_any_grid_and_renders_with_its_family() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(&["info", "phantom:body:40x32x72"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("40 × 32 × 72"), "{out}");
+    assert!(out.contains("i16"), "{out}");
+    let o = pofvr(
+        &[
+            "render",
+            "phantom:body:40x40x72",
+            "--size",
+            "48x48",
+            "--shade",
+            "-o",
+            "b.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("b.png").exists());
+    expect_error(
+        dir.path(),
+        &["info", "phantom:head:8x8x8"],
+        &["phantom:head:8x8x8", "cube"],
+        &["b.png"],
+    );
+    expect_error(
+        dir.path(),
+        &["info", "phantom:body:8x8"],
+        &["phantom:body:8x8", "XxYxZ"],
+        &["b.png"],
+    );
+}
+
+#[test]
+fn a_dicom_folder_renders_and_several_series_need_series() {
+    use pofvr::volume::dicom_write::{write_series, SeriesOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let vol = pofvr::volume::phantom::Phantom::Body.generate_dims([32, 32, 40]);
+    let ct = dir.path().join("ct");
+    let opts = SeriesOptions {
+        intercept: -1024,
+        ..SeriesOptions::default()
+    };
+    write_series(&vol, &ct, &opts).unwrap();
+    let o = pofvr(&["info", "ct"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("32 × 32 × 40") && out.contains("i16"), "{out}");
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/ct-chest-skin-bone.json");
+    let tf = tf.to_str().unwrap();
+    let o = pofvr(
+        &[
+            "render", "ct", "--tf", tf, "--size", "32x32", "-o", "ct.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    // A second series in the same folder: an error listing both, then --series picks one.
+    let other = SeriesOptions {
+        series_uid: "1.2.3.99".into(),
+        ..SeriesOptions::default()
+    };
+    let tmp = dir.path().join("tmp");
+    write_series(&vol, &tmp, &other).unwrap();
+    for e in std::fs::read_dir(&tmp).unwrap() {
+        let p = e.unwrap().path();
+        let name = format!("b_{}", p.file_name().unwrap().to_string_lossy());
+        std::fs::rename(&p, ct.join(name)).unwrap();
+    }
+    std::fs::remove_dir(&tmp).unwrap();
+    expect_error(
+        dir.path(),
+        &["info", "ct"],
+        &["ct", "SeriesInstanceUID", "1.2.3.99", "2 series"],
+        &["ct", "ct.png"],
+    );
+    let o = pofvr(&["info", "ct", "--series", "1.2.3.99"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn convert_writes_ome_zarr_that_every_command_opens() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(
+        &["convert", "phantom:body:80x72x150", "body.zarr", "--quiet"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("body.zarr/zarr.json").is_file());
+    assert!(dir.path().join("body.zarr/1/zarr.json").is_file());
+    let info = |args: &[&str]| {
+        let o = pofvr(args, dir.path());
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        stdout(&o)
+    };
+    let full = info(&["info", "body.zarr"]);
+    assert!(
+        full.contains("80 × 72 × 150") && full.contains("i16"),
+        "{full}"
+    );
+    // The same voxels as the phantom: the same histogram lines.
+    let phantom = info(&["info", "phantom:body:80x72x150"]);
+    let hist = |s: &str| {
+        s.lines()
+            .filter(|l| l.contains('%'))
+            .map(str::to_string)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(hist(&full), hist(&phantom));
+    let half = info(&["info", "body.zarr", "--level", "1"]);
+    assert!(half.contains("40 × 36 × 75"), "{half}");
+    let arr = info(&["info", "body.zarr/1"]);
+    assert!(arr.contains("40 × 36 × 75"), "{arr}");
+    // render picks the level from the image size: a 32² image needs no more than 64 voxels.
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/ct-chest-skin-bone.json");
+    let o = pofvr(
+        &[
+            "render",
+            "body.zarr",
+            "--tf",
+            tf.to_str().unwrap(),
+            "--size",
+            "32x32",
+            "-o",
+            "z.png",
+            "--stats",
+            "s.json",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Level 2 (20×18×38) is the finest with every axis ≤ 64: 2×2×3 bricks of 16³.
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("s.json")).unwrap()).unwrap();
+    assert_eq!(stats["bricks"]["total"], 12, "{stats}");
+    // An existing output is refused; a bad store is a clear error.
+    expect_error(
+        dir.path(),
+        &["convert", "phantom:body:8x8x8", "body.zarr"],
+        &["body.zarr", "exists"],
+        &["body.zarr", "z.png", "s.json"],
+    );
+    std::fs::remove_file(dir.path().join("body.zarr/0/c/0/0/0")).unwrap();
+    expect_error(
+        dir.path(),
+        &["info", "body.zarr"],
+        &["body.zarr/0/c/0/0/0", "missing"],
+        &["body.zarr", "z.png", "s.json"],
+    );
+    expect_error(
+        dir.path(),
+        &["convert", "phantom:body:8x8x8", "nodir/x.zarr"],
+        &["nodir"],
+        &["body.zarr", "z.png", "s.json"],
+    );
+}
