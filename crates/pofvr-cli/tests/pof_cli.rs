@@ -364,3 +364,136 @@ fn pof_upgrade_rewrites_an_older_layout_with_the_same_frames() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("bad.pof"));
     assert!(!d.join("bad-up.pof").exists());
 }
+
+/// The threshold rule of `culled` against `unculled` (raw RGBA f32 frames of `w`×`h`).
+fn rule_holds(unculled: &std::path::Path, culled: &std::path::Path, w: u32, h: u32) {
+    let read = |p: &std::path::Path| pofvr::Image::read_raw(p, w, h).unwrap();
+    let r = pofvr::check::check_threshold_rule(&read(unculled), &read(culled), 0.95);
+    assert!(r.holds(), "{}: {r}", culled.display());
+}
+
+#[test]
+fn pofs_of_edited_bases_predict_verified_frames_and_plain_pof_refuses_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The phantom's family, and the same family with its bases' control points edited:
+    // every opacity at 0.3×, the skin ramp moved up by 20.
+    let original =
+        pofvr::render::families::for_phantom(pofvr::volume::phantom::Phantom::SheppLogan);
+    let mut edited = original.clone();
+    for (i, b) in edited.bases.iter_mut().enumerate() {
+        for p in &mut b.opacity {
+            p[1] *= 0.3;
+            if i == 0 {
+                p[0] += 20.0;
+            }
+        }
+    }
+    std::fs::write(d.join("tf.json"), serde_json::to_string(&original).unwrap()).unwrap();
+    std::fs::write(
+        d.join("edited.json"),
+        serde_json::to_string(&edited).unwrap(),
+    )
+    .unwrap();
+    let out = pofvr()
+        .current_dir(d)
+        .args([
+            "pof",
+            "build",
+            "phantom:head:48",
+            "--tf",
+            "tf.json",
+            "--brick",
+            "8",
+        ])
+        .args([
+            "--views",
+            "6,6",
+            "--core-length",
+            "4",
+            "--sets",
+            "--quiet",
+            "-o",
+            "p.pof",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let render = |extra: &[&str], out: &str| {
+        pofvr()
+            .current_dir(d)
+            .args([
+                "render",
+                "phantom:head:48",
+                "--tf",
+                "edited.json",
+                "--brick",
+                "8",
+            ])
+            .args([
+                "--size",
+                "64x56",
+                "--view",
+                "30,20",
+                "--weights",
+                "3,1",
+                "--quiet",
+            ])
+            .args([
+                "--out",
+                &format!("{out}.png"),
+                "--out-raw",
+                &format!("{out}.raw"),
+            ])
+            .args(["--stats", &format!("{out}.json")])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = render(&["--whole"], "w");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Plain POF culling bounds with the table: refused, nothing written.
+    for plain in [
+        &["--pof", "p.pof"][..],
+        &["--pof", "p.pof", "--cull", "pof-set"],
+    ] {
+        let o = render(plain, "plain");
+        assert_eq!(o.status.code(), Some(2), "{plain:?}");
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(e.contains("p.pof") && e.contains("bases"), "{e}");
+        assert!(!d.join("plain.png").exists() && !d.join("plain.raw").exists());
+    }
+    // Verified, the stale table only predicts: a warning, and the rule holds.
+    for (name, args) in [
+        ("pof-verify", &["--cull", "pof", "--verify"][..]),
+        ("pof-set-verify", &["--cull", "pof-set", "--verify"]),
+        (
+            "verified-pof",
+            &["--cull", "verified", "--predictor", "pof"],
+        ),
+        (
+            "verified-pof-set",
+            &["--cull", "verified", "--predictor", "pof-set"],
+        ),
+    ] {
+        let o = render(&[&["--pof", "p.pof"][..], args].concat(), name);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{name}: {e}");
+        assert!(e.contains("warning") && e.contains("bases"), "{name}: {e}");
+        rule_holds(&d.join("w.raw"), &d.join(format!("{name}.raw")), 64, 56);
+        let s: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join(format!("{name}.json"))).unwrap())
+                .unwrap();
+        assert_eq!(s["verified"], true, "{name}: {s}");
+    }
+    // Any verified frame takes the table with the warning, even one whose predictor does
+    // not read it (the proxy, --cull verified's own).
+    let o = render(&["--pof", "p.pof", "--cull", "verified"], "proxy");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && e.contains("warning"), "{e}");
+    rule_holds(&d.join("w.raw"), &d.join("proxy.raw"), 64, 56);
+}

@@ -155,6 +155,15 @@ pub enum Error {
         /// The mode asked for.
         mode: CullMode,
     },
+    /// An unverified POF cull with POFs built for other basis shapes
+    /// ([`crate::Scene::load_pof_predictions`]): they bound nothing.
+    #[error("cull mode {} needs POFs of the family's bases without verification, and {why}: verify the frame or rebuild the POFs", .mode.name())]
+    StalePofs {
+        /// The mode asked for.
+        mode: CullMode,
+        /// What differs.
+        why: String,
+    },
     /// A [`crate::Cull`] carrying another scene's POFs.
     #[error("the frame's POFs belong to another scene: take them from the scene rendered")]
     ForeignPofs,

@@ -162,7 +162,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             (None, None) => CullMode::None,
         };
         if let Some(p) = &a.frame.pof {
-            scene = scene.load_pof_levels(p, &a.frame.pof_level)?;
+            scene = load_pofs(scene, &a.frame, cull, p)?;
         }
         if cull == CullMode::PofSet && !scene.pofs().is_some_and(Pofs::has_sets) {
             bail!("--cull pof-set needs a POF file built with --sets");
@@ -269,6 +269,24 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         );
     }
     Ok(())
+}
+
+/// `scene` with the POF file `p` (and `--pof-level`s). A frame that verifies its cull
+/// (`--verify`, or `--cull verified`) accepts POFs built for other basis shapes, with a
+/// warning: they only predict there, and verification keeps the image right. Plain
+/// `--cull pof` and `pof-set` refuse them, since they bound nothing.
+pub(crate) fn load_pofs(scene: Scene, a: &FrameArgs, cull: CullMode, p: &Path) -> Result<Scene> {
+    if !(a.verify || cull == CullMode::Verified) {
+        return Ok(scene.load_pof_levels(p, &a.pof_level)?);
+    }
+    let scene = scene.load_pof_predictions(p, &a.pof_level)?;
+    if let Some(why) = scene.pofs().and_then(Pofs::stale_reason) {
+        eprintln!(
+            "warning: {why}; they only predict the cull, which verification repairs, so the \
+             image stays right but more bricks are rendered and repaired"
+        );
+    }
+    Ok(scene)
 }
 
 /// The cull of `--cull` mode `m` with `--predictor` and `--verify`, checked.

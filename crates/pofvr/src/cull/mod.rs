@@ -23,6 +23,8 @@
 //!   repair, never a pixel.
 
 mod bound;
+#[cfg(test)]
+mod edited_bases_test;
 mod exact;
 mod fill;
 pub mod ideal;

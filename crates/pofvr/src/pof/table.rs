@@ -197,6 +197,16 @@ impl PofTable {
         grid: &BrickGrid,
         tf: &TransferFunction,
     ) -> Result<(), PofError> {
+        self.check_grid(volume, grid)?;
+        self.check_bases(tf)
+    }
+
+    /// Checks that the table was built for `volume` and `grid` (size, voxel type, brick
+    /// size, brick value ranges), whatever the family.
+    ///
+    /// # Errors
+    /// [`PofError::Mismatch`] naming what differs.
+    pub fn check_grid(&self, volume: &Volume, grid: &BrickGrid) -> Result<(), PofError> {
         let m = &self.meta;
         let mismatch = |what, in_file: String, expected: String| {
             Err(PofError::Mismatch {
@@ -232,6 +242,25 @@ impl PofTable {
                 format!("hash {h:016x}"),
             );
         }
+        Ok(())
+    }
+
+    /// Checks that the table was built for `tf`'s bases: their count, then their shapes
+    /// (names and points). A table whose shapes differ still predicts for a verified
+    /// frame ([`crate::Scene::load_pof_predictions`]), but bounds nothing.
+    ///
+    /// # Errors
+    /// [`PofError::Mismatch`] naming what differs.
+    pub fn check_bases(&self, tf: &TransferFunction) -> Result<(), PofError> {
+        let m = &self.meta;
+        let mismatch = |what, in_file: String, expected: String| {
+            Err(PofError::Mismatch {
+                file: self.source.clone(),
+                what,
+                in_file,
+                expected,
+            })
+        };
         if m.basis_count as usize != tf.bases.len() {
             return mismatch(
                 "transfer-function family (basis count)",

@@ -302,6 +302,28 @@ impl Scene {
         Ok(self)
     }
 
+    /// This scene with `first` (and `more` levels, as [`Scene::load_pof_levels`]) as POFs
+    /// that may have been built for other basis shapes than the scene's, as when the user
+    /// edited the family's bases after building them (the count must still agree). Such
+    /// POFs bound nothing, but still predict: frames cull with them only when verified
+    /// ([`Cull::Verified`] with a POF predictor, or [`FrameRequest::verify`]), and
+    /// verification repairs what they cull wrongly, so images stay right while predictions
+    /// get worse. [`Pofs::stale_reason`] says what differs.
+    ///
+    /// # Errors
+    /// [`Error::Pof`] naming the file and what differs (volume, bricks, basis count, step,
+    /// threshold).
+    pub fn load_pof_predictions(
+        mut self,
+        first: impl AsRef<Path>,
+        more: &[PathBuf],
+    ) -> Result<Scene> {
+        let (levels, stale) = pofs::load_levels_for(&self.job, first.as_ref(), more, true)?;
+        let sets = levels.has_sets();
+        self.pofs = Some(Pofs::new(Box::new(levels), sets).stale(stale));
+        Ok(self)
+    }
+
     /// A scene of the same volume, bricks and settings rendered with `family`: its POFs
     /// are kept when `family` has the same bases (names and points; weights and colour are
     /// free), and dropped otherwise, since they bound the old bases' opacity. The bricks'
@@ -350,6 +372,14 @@ impl Scene {
         if let Some(p) = req.cull.pofs() {
             if !self.pofs.as_ref().is_some_and(|own| std::ptr::eq(own, p)) {
                 return Err(Error::ForeignPofs);
+            }
+            // POFs of other basis shapes bound nothing: only verification keeps the rule.
+            if let (Some(why), false) = (p.stale_reason(), req.verify || mode == CullMode::Verified)
+            {
+                return Err(Error::StalePofs {
+                    mode,
+                    why: why.to_owned(),
+                });
             }
         }
         let look = Look {

@@ -28,6 +28,9 @@ use crate::pof::{Encoding, PofError, PofMethod, PofSettings, PofTable};
 pub struct Pofs {
     bound: std::sync::Arc<dyn OpacityBound + Send>,
     sets: bool,
+    /// Why the POFs bound nothing (built for other basis shapes), when they don't: they
+    /// then only predict, for verified frames ([`crate::Scene::load_pof_predictions`]).
+    stale: Option<String>,
 }
 
 impl std::fmt::Debug for Pofs {
@@ -35,6 +38,7 @@ impl std::fmt::Debug for Pofs {
         f.debug_struct("Pofs")
             .field("core_length", &self.bound.core_length())
             .field("sets", &self.sets)
+            .field("stale", &self.stale)
             .finish_non_exhaustive()
     }
 }
@@ -44,7 +48,22 @@ impl Pofs {
         Pofs {
             bound: bound.into(),
             sets,
+            stale: None,
         }
+    }
+
+    /// These POFs marked as built for other basis shapes (`why` says which): predictions
+    /// only, which a frame may cull with only when it verifies the cull.
+    pub(crate) fn stale(mut self, why: Option<String>) -> Self {
+        self.stale = why;
+        self
+    }
+
+    /// Why these POFs bound nothing, when they were built for other basis shapes than the
+    /// scene's ([`crate::Scene::load_pof_predictions`]); `None` for POFs of its bases.
+    #[must_use]
+    pub fn stale_reason(&self) -> Option<&str> {
+        self.stale.as_deref()
     }
 
     /// The bounds, as the culler reads them.
@@ -196,7 +215,37 @@ pub(crate) fn load_levels(
     first: &Path,
     more: &[PathBuf],
 ) -> Result<CoreLevels, PofError> {
+    load_levels_for(job, first, more, false).map(|(levels, _)| levels)
+}
+
+/// Checks `table` against `grid` and `job`'s bases. With `any_shapes`, tables built for
+/// other basis shapes (but as many bases) pass, and the mismatch is returned as text.
+fn check_table(
+    job: &RenderJob,
+    grid: &BrickGrid,
+    table: &PofTable,
+    any_shapes: bool,
+) -> Result<Option<String>, PofError> {
+    table.check_grid(&job.volume, grid)?;
+    match table.check_bases(&job.tf) {
+        Ok(()) => Ok(None),
+        Err(e) if any_shapes && table.meta().basis_count as usize == job.tf.bases.len() => {
+            Ok(Some(e.to_string()))
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// [`load_levels`], and with `any_shapes` accepting tables of other basis shapes: then
+/// also the first table's mismatch ([`crate::Scene::load_pof_predictions`]).
+pub(crate) fn load_levels_for(
+    job: &RenderJob,
+    first: &Path,
+    more: &[PathBuf],
+    any_shapes: bool,
+) -> Result<(CoreLevels, Option<String>), PofError> {
     let render = job.grid.brick_size();
+    let mut stale: Option<String> = None;
     let mut own = Vec::new();
     let mut sub: Vec<PofTable> = Vec::new();
     let mut fine: Option<BrickGrid> = None;
@@ -206,8 +255,9 @@ pub(crate) fn load_levels(
         let table = PofTable::open(path)?;
         let size = table.meta().brick_size as usize;
         if size == render || size < 2 || !render.is_multiple_of(size) {
-            // The render grid's own, or a mismatch that `check_matches` names.
-            table.check_matches(&job.volume, &job.grid, &job.tf)?;
+            // The render grid's own, or a mismatch that `check_grid` names.
+            let why = check_table(job, &job.grid, &table, any_shapes)?;
+            stale = stale.or(why);
             own.push(check_sampling(job, &file, table)?);
             continue;
         }
@@ -230,7 +280,8 @@ pub(crate) fn load_levels(
                 );
         }
         let grid = fine.as_ref().expect("made above");
-        table.check_matches(&job.volume, grid, &job.tf)?;
+        let why = check_table(job, grid, &table, any_shapes)?;
+        stale = stale.or(why);
         sub.push(check_sampling(job, &file, table)?);
     }
     let levels = |tables| {
@@ -240,10 +291,11 @@ pub(crate) fn load_levels(
         })
     };
     let sub = levels(sub)?.map(|l| l.with_grid(fine.expect("sub-brick tables have a grid")));
-    Ok(match (levels(own)?, sub) {
+    let levels = match (levels(own)?, sub) {
         (Some(own), Some(sub)) => own.with_sub_bricks(sub),
         (Some(own), None) => own,
         (None, Some(sub)) => sub,
         (None, None) => unreachable!("at least the first table"),
-    })
+    };
+    Ok((levels, stale))
 }
