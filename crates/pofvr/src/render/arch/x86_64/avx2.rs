@@ -342,7 +342,9 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool, cons
             // occupancy cells are inside the grid `leap` covers.
             let leap = |j: usize| unsafe { *sk.leap.get_unchecked(cells[j] as usize) };
             let first = leap(0);
-            if Skip::leaps(first) {
+            if first & OCCUPIED != 0 {
+                // The first sample may be opaque: gather (below).
+            } else if Skip::leaps(first) {
                 // Lane 0's cube of empty cells: leap past it from within the loop.
                 let c = cell.map(|c| _mm256_cvtsi256_si32(c));
                 let kb = sk.leap_end(k, c, first, k1);
@@ -352,8 +354,9 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool, cons
                     continue;
                 }
             }
-            let any = (1..count as usize).fold(first, |o, j| o | leap(j));
-            if any & OCCUPIED == 0 {
+            if first & OCCUPIED == 0
+                && (1..count as usize).fold(first, |o, j| o | leap(j)) & OCCUPIED == 0
+            {
                 // Eight samples in empty cells: no corners to gather.
                 sk.skipped += count as u64;
                 k += 8;
