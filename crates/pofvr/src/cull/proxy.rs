@@ -24,6 +24,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use rayon::prelude::*;
 
 use crate::brick::{BrickGrid, BrickId};
+use crate::render::transfer_function::TF_BINS;
 use crate::render::{Camera, IndexRay, PixelRect, SampledTf};
 use crate::volume::{Volume, Voxel};
 use crate::with_voxels;
@@ -335,6 +336,9 @@ impl Proxy {
     }
 }
 
+// A cell's bins are sorted as u16.
+const _: () = assert!(TF_BINS <= 1 << 16);
+
 /// One slab of cells: per basis the mean extinction of each cell's value groups, and the
 /// groups' shares.
 struct Slab {
@@ -356,29 +360,44 @@ fn slab<T: Voxel>(
     let mut tau = vec![vec![0f32; cx * cy * PROXY_GROUPS]; bases];
     let mut share = vec![0f32; cx * cy * PROXY_GROUPS];
     let zs = z * PROXY_CELL..((z + 1) * PROXY_CELL).min(nz);
-    let mut bins: Vec<usize> = Vec::with_capacity(PROXY_CELL.pow(3));
+    // Bins where some basis is not transparent: a cell with none (air, or tissue outside
+    // the family) has every group at zero and needs no sort. Most cells of a CT are such.
+    let opaque: Vec<bool> = (0..TF_BINS)
+        .map(|b| tables.iter().any(|t| t[b] > 0.0))
+        .collect();
+    let mut bins: Vec<u16> = Vec::with_capacity(PROXY_CELL.pow(3));
     for ycell in 0..cy {
         let ys = ycell * PROXY_CELL..((ycell + 1) * PROXY_CELL).min(ny);
         for xcell in 0..cx {
             let xs = xcell * PROXY_CELL..((xcell + 1) * PROXY_CELL).min(nx);
             bins.clear();
+            let mut any = false;
             for zz in zs.clone() {
                 for y in ys.clone() {
                     let row = &v[(zz * ny + y) * nx..][xs.clone()];
-                    bins.extend(row.iter().map(|x| sampled.bin(x.to_f32())));
+                    bins.extend(row.iter().map(|x| {
+                        let b = sampled.bin(x.to_f32());
+                        any |= opaque[b];
+                        b as u16
+                    }));
                 }
             }
-            bins.sort_unstable();
             let c = (ycell * cx + xcell) * PROXY_GROUPS;
             let n = bins.len();
+            if any {
+                bins.sort_unstable();
+            }
             for g in 0..PROXY_GROUPS {
                 let part = &bins[g * n / PROXY_GROUPS..(g + 1) * n / PROXY_GROUPS];
                 if part.is_empty() {
                     continue;
                 }
                 share[c + g] = part.len() as f32 / n as f32;
+                if !any {
+                    continue;
+                }
                 for (t, table) in tau.iter_mut().zip(&tables) {
-                    let sum: f64 = part.iter().map(|b| f64::from(table[*b])).sum();
+                    let sum: f64 = part.iter().map(|b| f64::from(table[usize::from(*b)])).sum();
                     t[c + g] = (sum / part.len() as f64) as f32;
                 }
             }
