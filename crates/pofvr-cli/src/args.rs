@@ -173,6 +173,15 @@ pub(crate) struct RenderArgs {
     pub(crate) reference: Option<PathBuf>,
     #[command(flatten)]
     pub(crate) frame: FrameArgs,
+    /// At most this much memory for the volume's voxels (e.g. 256M, 4G): a volume larger
+    /// than that is rendered by the brick engine (the default engine then, whatever
+    /// --cull), each brick it renders read on demand (raw, NRRD and MetaImage raw data:
+    /// positioned reads of the file) into an LRU cache within the budget, and the bricks'
+    /// value ranges measured by streaming the file once. --stats adds bytes_read,
+    /// bricks_read, cache_hits, cache_peak_bytes and peak_rss_bytes. The image is the same.
+    /// > default: none (the whole volume is mapped)
+    #[arg(long, value_name = "SIZE")]
+    pub(crate) memory_budget: Option<String>,
     /// Frames to render: an orbit about the volume's Y axis (see --orbit), so that per-frame
     /// time can be measured after start-up. With more than one frame, outputs get a
     /// `-NNNN` frame suffix and --stats holds one entry per frame.

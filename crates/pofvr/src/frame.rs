@@ -295,6 +295,28 @@ impl RenderJob {
             .get_or_init(|| Proxy::new(&self.volume, &self.sampled))
     }
 
+    /// [`RenderJob::proxy`], measured by streaming the brick store's file when there is one
+    /// (a budgeted volume is never mapped whole).
+    fn stream_proxy(&self) -> Result<&Proxy, FrameError> {
+        let Some(store) = self.store.as_ref().filter(|s| s.source().is_file()) else {
+            return Ok(self.proxy());
+        };
+        if let Some(p) = self.proxy.get() {
+            return Ok(p);
+        }
+        let d = self.volume.dims();
+        // Slabs of at most an eighth of the budget, so that they fit beside the cache.
+        let plane = (d[0] * d[1] * self.volume.data_type().size()) as u64;
+        let planes = (store.budget() / 8 / plane.max(1)).max(1) as usize;
+        let read = |z0: usize, n: usize| {
+            store
+                .source()
+                .read_box(&self.volume, [0, 0, z0], [d[0], d[1], n])
+        };
+        let p = Proxy::from_slabs(d, &self.sampled, planes, &read)?;
+        Ok(self.proxy.get_or_init(|| p))
+    }
+
     /// Forgets the bricks the last verified frame needed, so that the next
     /// [`Predictor::Previous`] frame starts from the proxy's guess.
     pub fn forget_previous(&self) {
@@ -805,6 +827,11 @@ fn rank_frame(
     let caster = RayCaster::new(&job.volume, &cls, settings);
     let bricks = FrameBricks::new(&job.volume, &job.grid, &job.sampled, weights, camera);
     let assignment = job.assignment(opts.curve, comm.size(), opts.replicas)?;
+    if opts.cull == CullMode::Verified
+        && matches!(opts.predictor, Predictor::Proxy | Predictor::Previous)
+    {
+        job.stream_proxy()?;
+    }
 
     // Cull (or predict) for this rank's tile.
     let t = Instant::now();

@@ -145,8 +145,25 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         .curve
         .parse()
         .map_err(|e| anyhow::anyhow!("--curve: {e}"))?;
-    let grid = backend.grid(&vol, a.volume.brick, curve)?;
+    let budget = a
+        .memory_budget
+        .as_deref()
+        .map(pofvr::store::parse_size)
+        .transpose()
+        .map_err(|e| anyhow!("--memory-budget: {e}"))?;
+    // An MPI rank measures only its own bricks (the backend's grid) and keeps copies of
+    // them; one process under a budget streams the file once instead.
+    let grid = match budget {
+        Some(_) if !backend.distributed() => pofvr::store::grid_for(&vol, a.volume.brick, budget)?,
+        _ => backend.grid(&vol, a.volume.brick, curve)?,
+    };
+    let store = if backend.distributed() {
+        None
+    } else {
+        pofvr::store::cache_for(&vol, budget)?
+    };
     let mut job = RenderJob::with_grid(vol, tf, grid, resolve::settings(&a.view))?;
+    job.store = store;
     backend.prepare(&mut job, curve, a.frame.replicas)?;
     let mut scene = Scene::from_job(job)?;
     sp.set_message("rendering");
@@ -170,7 +187,8 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         Some(cull)
     };
     let scene = scene;
-    let engine = engine(&a.frame, backend.distributed())?;
+    let budgeted = scene.store().is_some();
+    let engine = engine(&a.frame, backend.distributed(), budgeted)?;
     let cull = match mode {
         Some(m) => Some(verified_cull(&a.frame, m, &scene)?),
         None => None,
@@ -214,7 +232,10 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         }
         all.push(stats);
     }
-    let extra = backend.finish()?;
+    let mut extra = backend.finish()?;
+    if let (Some(b), Some(m)) = (budget, extra.as_mut()) {
+        m.insert("memory_budget".into(), budget_json(&scene, b)?);
+    }
     sp.finish_and_clear();
     if !backend.is_root() {
         return Ok(());
@@ -257,6 +278,23 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
                 100.0 * b.repaired as f64 / b.visible.max(1) as f64
             );
         }
+    }
+    if let Some(store) = scene.store() {
+        let per: Vec<String> = all
+            .iter()
+            .map(|s| format!("{:.1}", s.bytes_read as f64 / 1e6))
+            .collect();
+        let c = store.summary();
+        eprintln!(
+            "memory budget {} MB: bricks read on demand from the {}, MB read per frame [{}], {} bricks read, {} cache hits, cache peak {:.1} MB, peak RSS {:.1} MB",
+            c.budget_bytes / 1_000_000,
+            store.source().kind(),
+            per.join(", "),
+            c.bricks_read,
+            c.cache_hits,
+            c.cache_peak_bytes as f64 / 1e6,
+            pofvr::store::peak_rss_bytes() as f64 / 1e6
+        );
     }
     if all.len() > 1 {
         let ms: Vec<f64> = all.iter().map(|s| s.frame_ms).collect();
@@ -327,11 +365,52 @@ pub(crate) fn verified_cull<'s>(
         .ok_or_else(|| no_pofs(format!("--cull {}", m.name())))
 }
 
+/// The `memory_budget` entry of `--stats`: the budget, where bricks come from, why the
+/// engine is the brick engine, and the cache's totals over the run.
+fn budget_json(scene: &Scene, budget: u64) -> Result<serde_json::Value> {
+    let volume_bytes = pofvr::store::volume_bytes(scene.volume());
+    let mut m = serde_json::Map::new();
+    m.insert("budget_bytes".into(), budget.into());
+    m.insert("volume_bytes".into(), volume_bytes.into());
+    match scene.store() {
+        Some(store) => {
+            m.insert("source".into(), store.source().kind().into());
+            m.insert(
+                "engine".into(),
+                "bricks: the volume does not fit the budget, so the brick engine reads the bricks it renders"
+                    .into(),
+            );
+            m.insert("cache".into(), serde_json::to_value(store.summary())?);
+        }
+        None => {
+            m.insert(
+                "source".into(),
+                "the whole volume (it fits the budget)".into(),
+            );
+        }
+    }
+    m.insert(
+        "peak_rss_bytes".into(),
+        pofvr::store::peak_rss_bytes().into(),
+    );
+    Ok(serde_json::Value::Object(m))
+}
+
 /// The engine of `--engine`, or by default march for one process without `--cull`,
-/// `--pof` or `--ranks` above 1, bricks otherwise; march with any of those is an error.
-pub(crate) fn engine(a: &crate::args::FrameArgs, distributed: bool) -> Result<Engine> {
+/// `--pof`, `--ranks` above 1 or a `--memory-budget` the volume does not fit, bricks
+/// otherwise; march with any of those is an error.
+pub(crate) fn engine(
+    a: &crate::args::FrameArgs,
+    distributed: bool,
+    budgeted: bool,
+) -> Result<Engine> {
     let conflict = if distributed {
         Some("an MPI job".to_owned())
+    } else if budgeted {
+        Some(
+            "--memory-budget smaller than the volume (the march engine needs the whole lattice)"
+                .to_owned(),
+        )
     } else if let Some(c) = &a.cull {
         Some(format!("--cull {c}"))
     } else if a.pof.is_some() {

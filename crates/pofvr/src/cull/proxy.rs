@@ -108,6 +108,41 @@ impl Proxy {
         }
     }
 
+    /// As [`Proxy::new`] (the same proxy), for a volume of `dims` voxels read slab by slab
+    /// with `read(z0, planes)`, which gives the voxels of planes `z0..z0 + planes`, x
+    /// fastest: a volume larger than memory is streamed once, about `slab_planes` planes
+    /// at a time.
+    ///
+    /// # Errors
+    /// The first error of `read`.
+    pub fn from_slabs<E>(
+        dims: [usize; 3],
+        sampled: &SampledTf,
+        slab_planes: usize,
+        read: &dyn Fn(usize, usize) -> Result<crate::volume::VoxelData, E>,
+    ) -> Result<Self, E> {
+        let cells = dims.map(|n| n.div_ceil(PROXY_CELL));
+        let [cx, cy, cz] = cells;
+        let per_read = (slab_planes / PROXY_CELL).max(1);
+        let mut tau = vec![Vec::with_capacity(cx * cy * cz); sampled.basis_count()];
+        for first in (0..cz).step_by(per_read) {
+            let layers = per_read.min(cz - first);
+            let z0 = first * PROXY_CELL;
+            let planes = (layers * PROXY_CELL).min(dims[2] - z0);
+            let data = read(z0, planes)?;
+            let sdims = [dims[0], dims[1], planes];
+            let slabs: Vec<Vec<Vec<f32>>> = with_voxels!(&data, v => {
+                (0..layers).into_par_iter().map(|z| slab(v, sdims, cells, z, sampled)).collect()
+            });
+            for s in slabs {
+                for (t, b) in tau.iter_mut().zip(s) {
+                    t.extend(b);
+                }
+            }
+        }
+        Ok(Proxy { cells, tau })
+    }
+
     /// Cells per axis.
     #[must_use]
     pub fn cells(&self) -> [usize; 3] {

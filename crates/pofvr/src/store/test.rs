@@ -313,3 +313,25 @@ fn a_file_cut_short_after_opening_is_an_error_naming_it() {
     assert!(e.to_string().contains(&path.display().to_string()), "{e}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn the_streamed_proxy_is_the_mapped_proxy() {
+    use crate::cull::proxy::Proxy;
+    let vol = head_i16();
+    let tf = families::auto_ramp(BrickGrid::from_volume(&vol, 8).unwrap().value_range());
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let sampled = crate::render::SampledTf::new(&tf, grid.value_range());
+    let mapped = Proxy::new(&vol, &sampled);
+    let d = vol.dims();
+    for planes in [1, 4, 9, 64] {
+        let read =
+            |z0: usize, n: usize| BrickSource::Memory.read_box(&vol, [0, 0, z0], [d[0], d[1], n]);
+        let streamed = Proxy::from_slabs(d, &sampled, planes, &read).unwrap();
+        assert_eq!(streamed.cells(), mapped.cells());
+        assert_eq!(
+            streamed.extinction(&[1.0]),
+            mapped.extinction(&[1.0]),
+            "{planes} planes"
+        );
+    }
+}
