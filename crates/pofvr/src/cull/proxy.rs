@@ -124,23 +124,31 @@ impl Proxy {
         let cells = dims.map(|n| n.div_ceil(PROXY_CELL));
         let [cx, cy, cz] = cells;
         let per_read = (slab_planes / PROXY_CELL).max(1);
-        let mut tau = vec![Vec::with_capacity(cx * cy * cz); sampled.basis_count()];
+        let n = cx * cy * cz * PROXY_GROUPS;
+        let mut tau = vec![Vec::with_capacity(n); sampled.basis_count()];
+        let mut share = Vec::with_capacity(n);
         for first in (0..cz).step_by(per_read) {
             let layers = per_read.min(cz - first);
             let z0 = first * PROXY_CELL;
             let planes = (layers * PROXY_CELL).min(dims[2] - z0);
             let data = read(z0, planes)?;
             let sdims = [dims[0], dims[1], planes];
-            let slabs: Vec<Vec<Vec<f32>>> = with_voxels!(&data, v => {
+            let slabs: Vec<Slab> = with_voxels!(&data, v => {
                 (0..layers).into_par_iter().map(|z| slab(v, sdims, cells, z, sampled)).collect()
             });
             for s in slabs {
-                for (t, b) in tau.iter_mut().zip(s) {
+                for (t, b) in tau.iter_mut().zip(s.tau) {
                     t.extend(b);
                 }
+                share.extend(s.share);
             }
         }
-        Ok(Proxy { cells, tau })
+        Ok(Proxy {
+            cells,
+            tau,
+            share,
+            cache: Arc::default(),
+        })
     }
 
     /// Cells per axis.
