@@ -228,6 +228,7 @@ impl From<FrameError> for Error {
             FrameError::Distribute(e) => Error::Distribute(e),
             FrameError::Composite(e) => Error::Composite(e),
             FrameError::Comm(e) => Error::Comm(e),
+            FrameError::Read(e) => Error::Volume(e),
         }
     }
 }

@@ -63,6 +63,9 @@ pub struct RenderJob {
     /// when a brick is here it is sampled from its copy, not from the volume. The frame is
     /// the same either way.
     pub bricks: Option<BrickStore>,
+    /// Under a memory budget, the cache the brick engine reads each brick it renders from
+    /// (see [`crate::store`]); `None` samples the volume.
+    pub store: Option<std::sync::Arc<crate::store::BrickCache>>,
     /// The last [`RenderJob::assignment`], by curve and rank count: every frame asks for
     /// it, and it only changes with the bricks and bases, which a job keeps.
     assignment_cache: std::sync::Mutex<Option<CachedAssignment>>,
@@ -247,6 +250,7 @@ impl RenderJob {
             sampled,
             settings,
             bricks: None,
+            store: None,
             assignment_cache: std::sync::Mutex::default(),
             cull_scratch: CullScratch::new(),
             proxy: std::sync::OnceLock::new(),
@@ -348,6 +352,18 @@ pub struct FrameStats {
     pub verified: bool,
     /// The predictor of a verified frame (`None` otherwise).
     pub predictor: Option<&'static str>,
+    /// Bytes the frame read from the brick store's source, all ranks (0 without a store).
+    pub bytes_read: u64,
+    /// Bricks it read from the store's source, all ranks (cache misses).
+    pub bricks_read: u64,
+    /// Bricks the store served from its cache, all ranks.
+    pub cache_hits: u64,
+    /// This process's peak resident set (`VmHWM`) at the end of the frame.
+    pub peak_rss_bytes: u64,
+    /// The most voxel bytes the brick store has cached at once (0 without a store).
+    pub cache_peak_bytes: u64,
+    /// The store's memory budget in bytes (`None` without a store).
+    pub memory_budget: Option<u64>,
 }
 
 /// Brick counts of a frame.
@@ -399,6 +415,15 @@ pub struct RankStats {
     /// their fragments (0 unless verified).
     #[serde(default)]
     pub repair_ms: f64,
+    /// Bytes it read from the brick store's source.
+    #[serde(default)]
+    pub bytes_read: u64,
+    /// Bricks it read from the store's source.
+    #[serde(default)]
+    pub bricks_read: u64,
+    /// Bricks the store served it from its cache.
+    #[serde(default)]
+    pub cache_hits: u64,
 }
 
 /// Per-frame choices.
@@ -462,6 +487,9 @@ pub enum FrameError {
     /// An exchange between ranks failed.
     #[error(transparent)]
     Comm(#[from] CommError),
+    /// A brick could not be read from the brick store's file.
+    #[error(transparent)]
+    Read(#[from] crate::volume::VolumeError),
 }
 
 impl FrameError {
@@ -491,6 +519,7 @@ impl FrameStats {
             threads: rayon::current_num_threads(),
             engine,
             samples_per_ray: st.samples as f64 / st.rays.max(1) as f64,
+            peak_rss_bytes: crate::store::peak_rss_bytes(),
             ..FrameStats::default()
         }
     }
@@ -839,17 +868,24 @@ fn rank_frame(
                 .collect()
         }
     };
-    let render_all = |ids: &[BrickId]| -> (Vec<TileFragment>, RayStats) {
-        let (fragments, rays): (Vec<TileFragment>, Vec<RayStats>) = ids
+    // What this rank reads from the brick store (its own bricks only).
+    let reads = crate::store::ReadCounts::default();
+    let render_all = |ids: &[BrickId]| -> Result<(Vec<TileFragment>, RayStats), FrameError> {
+        let done: Vec<(TileFragment, RayStats)> = ids
             .par_iter()
             .map(|id| {
                 let rect = bricks.footprints[id.index()].expect("visible bricks are on screen");
                 let ibox = job.grid.index_box(*id);
-                let (pixels, st) = match job.bricks.as_ref().and_then(|s| s.get(*id)) {
-                    Some(copy) => caster.render_box_copy(camera, &frame, rect, &ibox, copy),
-                    None => caster.render_box(camera, &frame, rect, &ibox),
+                let (pixels, st) = match (job.bricks.as_ref().and_then(|s| s.get(*id)), &job.store)
+                {
+                    (Some(copy), _) => caster.render_box_copy(camera, &frame, rect, &ibox, copy),
+                    (None, Some(store)) => {
+                        let copy = store.get(&job.volume, &job.grid, *id, &reads)?;
+                        caster.render_box_copy(camera, &frame, rect, &ibox, &copy)
+                    }
+                    (None, None) => caster.render_box(camera, &frame, rect, &ibox),
                 };
-                (
+                Ok((
                     TileFragment {
                         brick: *id,
                         depth_key: bricks.depth_key[id.index()],
@@ -857,17 +893,18 @@ fn rank_frame(
                         pixels,
                     },
                     st,
-                )
+                ))
             })
-            .unzip();
+            .collect::<Result<_, FrameError>>()?;
+        let (fragments, rays): (Vec<TileFragment>, Vec<RayStats>) = done.into_iter().unzip();
         let mut total = RayStats::default();
         for r in rays {
             total += r;
         }
-        (fragments, total)
+        Ok((fragments, total))
     };
     let mut mine = mine_of(&visible);
-    let (mut fragments, mut mine_stats) = render_all(&mine);
+    let (mut fragments, mut mine_stats) = render_all(&mine)?;
     let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
 
     // Fragments to tile owners, tiles to rank 0; a verified frame is checked and repaired
@@ -943,7 +980,7 @@ fn rank_frame(
                 .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(needed);
             if repaired > 0 {
                 let fix = mine_of(&failing);
-                let (more, st) = render_all(&fix);
+                let (more, st) = render_all(&fix)?;
                 mine_stats += st;
                 mine.extend(fix);
                 match &mut received {
@@ -989,6 +1026,9 @@ fn rank_frame(
         resident_bytes: resident_bytes(),
         verify_ms,
         repair_ms,
+        bytes_read: reads.bytes_read(),
+        bricks_read: reads.bricks_read(),
+        cache_hits: reads.cache_hits(),
     };
     let gathered = comm.gather(
         Rank(0),
@@ -1031,6 +1071,13 @@ fn rank_frame(
         .copied()
         .filter(|b| !visible[b.index()])
         .collect();
+    stats.bytes_read = ranks.iter().map(|r| r.bytes_read).sum();
+    stats.bricks_read = ranks.iter().map(|r| r.bricks_read).sum();
+    stats.cache_hits = ranks.iter().map(|r| r.cache_hits).sum();
+    if let Some(store) = &job.store {
+        stats.cache_peak_bytes = store.summary().cache_peak_bytes;
+        stats.memory_budget = Some(store.budget());
+    }
     stats.ranks = ranks;
     Ok(Some((image, stats)))
 }

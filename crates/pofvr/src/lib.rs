@@ -76,6 +76,7 @@ pub mod pof;
 pub mod pof_measure;
 pub mod render;
 pub mod scene;
+pub mod store;
 pub mod volume;
 
 pub use cull::CullMode;

@@ -41,6 +41,7 @@ fn every_predictor_obeys_the_threshold_rule_on_every_real_volume() {
                 Predictor::Random(11),
                 Predictor::Random(12345),
             ] {
+                let mut one_rank = None;
                 for ranks in [1, 3] {
                     let opts = FrameOptions {
                         cull: CullMode::Verified,
@@ -56,6 +57,17 @@ fn every_predictor_obeys_the_threshold_rule_on_every_real_volume() {
                     assert!(st.bricks.repaired <= st.bricks.visible, "{what}");
                     if predictor == Predictor::Everything {
                         assert_eq!(st.bricks.repaired, st.bricks.visible, "{what}");
+                    }
+                    // Predictions made per pixel (the proxy's sample rays on the image's
+                    // grid) or per brick give the same frame for any tiling.
+                    if !matches!(predictor, Predictor::PofSet | Predictor::Previous) {
+                        match &one_rank {
+                            None => one_rank = Some((img, st.culled_bricks)),
+                            Some((img1, culled1)) => {
+                                assert_eq!(culled1, &st.culled_bricks, "{what}");
+                                assert!(img1 == &img, "{what}");
+                            }
+                        }
                     }
                 }
             }

@@ -34,14 +34,34 @@ fn copy_box<T: Voxel>(v: &[T], vdims: [usize; 3], lo: [usize; 3], n: [usize; 3])
 }
 
 impl BrickCopy {
-    /// Copies brick `id` of `grid` out of `volume`.
+    /// The box a copy of brick `id` holds: its first voxel and its voxels per axis (the
+    /// brick's box plus one voxel on every side, clipped to the volume).
     #[must_use]
-    pub fn new(volume: &Volume, grid: &BrickGrid, id: BrickId) -> Self {
+    pub fn apron_box(grid: &BrickGrid, id: BrickId) -> ([usize; 3], [usize; 3]) {
         let (lo, hi) = grid.voxel_bounds(id);
-        let vdims = volume.dims();
+        let vdims = grid.volume_dims();
         let origin: [usize; 3] = std::array::from_fn(|a| lo[a].saturating_sub(1));
         let dims: [usize; 3] =
             std::array::from_fn(|a| (hi[a] + 1).min(vdims[a] - 1) + 1 - origin[a]);
+        (origin, dims)
+    }
+
+    /// A copy made elsewhere (read from a file by [`crate::store`]): the voxels of the box
+    /// `origin`, `dims`, x fastest.
+    ///
+    /// # Panics
+    /// When `data` does not hold `dims` voxels (a caller's bug).
+    #[must_use]
+    pub fn from_parts(origin: [usize; 3], dims: [usize; 3], data: VoxelData) -> Self {
+        assert_eq!(data.len(), dims[0] * dims[1] * dims[2], "brick copy size");
+        BrickCopy { origin, dims, data }
+    }
+
+    /// Copies brick `id` of `grid` out of `volume`.
+    #[must_use]
+    pub fn new(volume: &Volume, grid: &BrickGrid, id: BrickId) -> Self {
+        let (origin, dims) = Self::apron_box(grid, id);
+        let vdims = volume.dims();
         let data = match volume.data() {
             VoxelData::U8(x) => {
                 VoxelData::U8(Voxels::owned(copy_box(x.as_slice(), vdims, origin, dims)))

@@ -312,3 +312,108 @@ fn proxy_termination_is_where_a_uniform_slab_reaches_the_depth() {
     assert!((t - 4.0).abs() < 1e-4, "{t}");
     assert!(proxy.termination(&vec![0.0; n], &ray, 1.0).is_infinite());
 }
+
+/// A volume of two proxy cells along x: the first half air (x < 2), half value 200; the
+/// second all 200. The family is opaque (α 0.5 per unit) above 100 only.
+fn two_cells() -> (crate::volume::Volume, crate::render::SampledTf) {
+    use crate::volume::{VoxelData, Voxels};
+    let (nx, ny, nz) = (8, 4, 4);
+    let v: Vec<u8> = (0..nx * ny * nz)
+        .map(|i| if i % nx < 2 { 0 } else { 200 })
+        .collect();
+    let vol = crate::volume::Volume::new(
+        [nx, ny, nz],
+        [1.0; 3],
+        VoxelData::U8(Voxels::owned(v)),
+        "cells",
+    )
+    .unwrap();
+    let tf = crate::render::TransferFunction::from_json(
+        r#"{"bases":[{"name":"b","opacity":[[0,0],[100,0],[101,0.5],[255,0.5]]}],"color":[[0,1,1,1]]}"#,
+        "t",
+    )
+    .unwrap();
+    let s = crate::render::SampledTf::new(
+        &tf,
+        crate::brick::ValueRange {
+            min: 0.0,
+            max: 255.0,
+        },
+    );
+    (vol, s)
+}
+
+#[test]
+fn proxy_cell_half_air_has_the_effective_extinction_of_its_groups() {
+    let (vol, s) = two_cells();
+    let proxy = Proxy::new(&vol, &s);
+    assert_eq!(proxy.cells(), [2, 1, 1]);
+    let e = -(0.5f32).ln();
+    let ext = proxy.extinction(&[1.0]);
+    // The uniform cell: its extinction. The half-air one: half the rays cross air over a
+    // correlation length, so −ln(½ + ½e^(−eℓ))/ℓ, far below the mean e/2 (which would
+    // hide what lies behind a surface too early).
+    assert!((ext[1] - e).abs() < 1e-5, "{ext:?}");
+    let l = proxy::CORRELATION_LENGTH;
+    let want = -(0.5 + 0.5 * (-e * l).exp()).ln() / l;
+    assert!((ext[0] - want).abs() < 1e-5, "{ext:?}, want {want}");
+    assert!(ext[0] < e / 2.0);
+    // Weights scale each group's extinction before the groups combine.
+    let ext2 = proxy.extinction(&[2.0]);
+    assert!((ext2[1] - 2.0 * e).abs() < 1e-5);
+    assert!(ext2[0] > ext[0] && ext2[0] < 2.0 * ext[0]);
+    // The cached extinction is the same, and follows the weights.
+    assert_eq!(*proxy.extinction_at(&[1.0]), ext);
+    assert_eq!(*proxy.extinction_at(&[2.0]), ext2);
+    assert_eq!(*proxy.extinction_at(&[1.0]), ext);
+}
+
+#[test]
+fn proxy_sample_rays_predict_the_same_set_for_any_tiling() {
+    // The sample rays sit on the image's grid: the union of the tiles' visible sets is the
+    // one-tile set, whatever the cut (the culled sets may differ only by bricks another
+    // tile finds visible).
+    let j = job(48, &[3.0, 1.0]);
+    let c = Camera::orbit(&j.volume, 30.0, 20.0, 97, 83, Projection::Orthographic);
+    let bricks = FrameBricks::new(&j.volume, &j.grid, &j.sampled, &j.tf.weights, &c);
+    let whole = bricks.bounds.unwrap();
+    let proxy = j.proxy();
+    let predict = |t| proxy.predict((&j.volume, &j.grid), (&c, &bricks), &j.tf.weights, t, 0.95);
+    let (vis, culled) = predict(whole);
+    assert!(!culled.is_empty(), "the skull hides the inside");
+    for cut in [1u32, 2, 3, 7] {
+        let xm = whole.x0 + (whole.width() * cut / 8).max(1);
+        let ym = whole.y0 + (whole.height() * (8 - cut) / 8).max(1);
+        let mut union = std::collections::BTreeSet::new();
+        for t in [
+            crate::render::PixelRect {
+                x0: whole.x0,
+                y0: whole.y0,
+                x1: xm,
+                y1: ym,
+            },
+            crate::render::PixelRect {
+                x0: xm,
+                y0: whole.y0,
+                x1: whole.x1,
+                y1: ym,
+            },
+            crate::render::PixelRect {
+                x0: whole.x0,
+                y0: ym,
+                x1: xm,
+                y1: whole.y1,
+            },
+            crate::render::PixelRect {
+                x0: xm,
+                y0: ym,
+                x1: whole.x1,
+                y1: whole.y1,
+            },
+        ] {
+            union.extend(predict(t).0);
+        }
+        let want: std::collections::BTreeSet<_> = vis.iter().copied().collect();
+        assert_eq!(union, want, "cut {cut}");
+    }
+}

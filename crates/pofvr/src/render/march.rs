@@ -20,13 +20,15 @@
 
 use rayon::prelude::*;
 
-use super::arch::Gather;
+use super::arch::{self, Gather};
 use super::camera::Camera;
+use super::frame_rays::FrameRays;
 use super::image::Image;
 use super::lattice::{sample_range, IndexRay};
-use super::occupancy::{Occupancy, CELL_SHIFT, OCCUPIED};
+use super::occupancy::Occupancy;
 use super::ray_caster::{RayCaster, RayStats};
 use super::sampler::TrilinearSampler;
+use super::skip::Skip;
 use crate::with_voxels;
 
 /// Rows per parallel work item, as the reference.
@@ -41,10 +43,6 @@ const RUN_MAX: i32 = 64;
 /// occupied one, before it looks at the occupancy again: the sample loop takes such
 /// samples for less than a cell lookup per few samples would cost.
 const CHUNK: i32 = 16;
-/// The least chessboard distance to an occupied cell at which an empty cell is leapt
-/// over, with the cube of empty cells around it; closer to occupied ones, leaps are too
-/// short to pay for themselves.
-const LEAP_MIN: i32 = 2;
 /// The shortest run of empty samples worth a skip: a shorter one costs more in the split of
 /// the sample loop than marching its samples of zero opacity does.
 const MIN_SKIP: i32 = 2;
@@ -65,36 +63,6 @@ impl std::ops::AddAssign for MarchStats {
     }
 }
 
-/// One axis of a ray's samples: the sampler's position, clamp and cell, per lattice index.
-#[derive(Clone, Copy)]
-struct Axis {
-    o: f32,
-    d: f32,
-    step: f32,
-    /// The volume's last index (the position clamp).
-    max: f32,
-    /// The last trilinear cell.
-    last: f32,
-}
-
-impl Axis {
-    /// The trilinear cell of sample `k` on this axis, as [`TrilinearSampler::sample`] finds it.
-    #[inline(always)]
-    fn cell(&self, k: i32) -> u32 {
-        let t = k as f32 * self.step;
-        let p = self.o + t * self.d;
-        let c = p.max(0.0).min(self.max).min(self.last);
-        // SAFETY: c is finite and in [0, last] (rays and positions are finite).
-        unsafe { c.to_int_unchecked::<u32>() }
-    }
-}
-
-/// The trilinear cell of sample `k` on every axis.
-#[inline(always)]
-fn cell3(axes: &[Axis; 3], k: i32) -> [u32; 3] {
-    [axes[0].cell(k), axes[1].cell(k), axes[2].cell(k)]
-}
-
 impl RayCaster<'_> {
     /// Renders the whole volume as [`RayCaster::render`] does, bit for bit, skipping the
     /// samples in the cells `occ` says are empty (see the [module](self)). `occ` must be
@@ -105,6 +73,14 @@ impl RayCaster<'_> {
         let mut image = Image::new(camera.width, camera.height);
         let frame = camera.frame();
         let vbox = self.volume_box();
+        let settings = self.settings();
+        let rays = FrameRays::new(
+            camera,
+            &frame,
+            self.volume().spacing(),
+            self.volume().unit(),
+            settings.jitter.map(|seed| (seed, settings.step)),
+        );
         let stats = with_voxels!(self.volume().data(), v => {
             let tri = TrilinearSampler::new(v, self.volume().dims());
             image
@@ -113,19 +89,23 @@ impl RayCaster<'_> {
                 .enumerate()
                 .map(|(band, rows)| {
                     let mut st = MarchStats::default();
+                    let mut skip = Skip::new(occ, &tri, settings.step);
                     for x0 in (0..w).step_by(TILE_COLS) {
                         for r in 0..rows.len() / w {
                             for x in x0..(x0 + TILE_COLS).min(w) {
                                 let y = (band * TILE_ROWS + r) as u32;
-                                let ray = self.pixel_ray(camera, &frame, x as u32, y);
+                                let ray = rays.ray(x as u32, y);
+                                debug_assert_eq!(ray, self.pixel_ray(camera, &frame, x as u32, y));
                                 if let Some(span) = ray.span(&vbox) {
                                     st.rays.rays += 1;
-                                    let range = sample_range(span, self.settings().step);
-                                    self.walk(&tri, occ, &ray, range, &mut rows[r * w + x], &mut st);
+                                    let range = sample_range(span, settings.step);
+                                    skip.aim(&ray);
+                                    self.walk(&tri, &mut skip, &ray, range, &mut rows[r * w + x], &mut st);
                                 }
                             }
                         }
                     }
+                    st.skipped_samples = skip.skipped;
                     st
                 })
                 .reduce(MarchStats::default, |mut a, b| {
@@ -136,89 +116,46 @@ impl RayCaster<'_> {
         (image, stats)
     }
 
-    /// Walks samples `k0..k1` of `ray` through the cells of `occ`, from sample to sample:
-    /// at sample `k`, its cell (the sampler's own) and that cell's [`Occupancy::leap_at`]
-    /// give a cube of cells of one kind around it, and the walk goes on from the first
-    /// sample estimated past the cube. Samples in cubes of empty cells are skipped once the
-    /// last of them is found, by its own cell, inside the cube (every axis's cell is
-    /// monotone in `k`, so then all of them are); everything else is marched into `acc`, in
-    /// order, in as few calls of the sample loop as the skips allow.
+    /// Walks samples `k0..k1` of `ray` through the cells of `skip` into `acc`. Where the
+    /// AVX2 loop runs, it tests the occupancy itself, eight samples at a time, and leaps
+    /// from within ([`super::arch::march_skip`]). Elsewhere the walk goes from sample to
+    /// sample: at sample `k`, its cell (the sampler's own) and that cell's
+    /// [`Occupancy::leaps`] give a cube of empty cells around it, and
+    /// [`Skip::leap_end`] the first sample past it; everything else is marched, in order,
+    /// in as few calls of the sample loop as the leaps allow.
     fn walk<T: Gather>(
         &self,
         tri: &TrilinearSampler<'_, T>,
-        occ: &Occupancy,
+        skip: &mut Skip<'_>,
         ray: &IndexRay,
         (k0, k1): (i32, i32),
         acc: &mut [f32; 4],
         st: &mut MarchStats,
     ) {
         let ert = self.settings().ert;
-        let step = self.settings().step;
-        let inv_step = 1.0 / step;
-        let axes: [Axis; 3] = std::array::from_fn(|a| Axis {
-            o: ray.o[a],
-            d: ray.d[a],
-            step,
-            max: tri.max[a],
-            last: tri.last_cell[a] as f32,
-        });
-        let inv: [f32; 3] = ray.d.map(|d| if d == 0.0 { 0.0 } else { 1.0 / d });
-        let n = occ.dims().map(|n| n as i32);
-        // The `t` at which the ray leaves the cells `lo..=hi` along axis `a`; infinite
-        // where it would leave the grid (clamped samples stay in its last cell). Only an
-        // estimate: skips verify their last sample.
-        let leave = |a: usize, lo: i32, hi: i32| -> f32 {
-            let d = axes[a].d;
-            if d > 0.0 && hi < n[a] - 1 {
-                (((hi + 1) << CELL_SHIFT) as f32 - axes[a].o) * inv[a]
-            } else if d < 0.0 && lo > 0 {
-                ((lo << CELL_SHIFT) as f32 - axes[a].o) * inv[a]
-            } else {
-                f32::INFINITY
-            }
-        };
+        if let Some(n) = arch::march_skip(&self.params(), tri, ray, (k0, k1), acc, skip) {
+            st.rays.samples += n;
+            return;
+        }
         let march = |from: i32, to: i32, acc: &mut [f32; 4], st: &mut MarchStats| {
             st.rays.samples += self.march(tri, ray, (from, to), acc);
             acc[3] >= ert
-        };
-        let in_cube = |c: [u32; 3], lo: &[i32; 3], hi: &[i32; 3]| {
-            (0..3).all(|a| {
-                let x = (c[a] >> CELL_SHIFT) as i32;
-                lo[a] <= x && x <= hi[a]
-            })
         };
         // The first sample neither marched nor skipped: samples `pend..k` are marched
         // before any skip past them.
         let mut pend = k0;
         let mut k = k0;
         while k < k1 {
-            let c = cell3(&axes, k).map(|x| (x >> CELL_SHIFT) as i32);
-            let leap = occ.leap_at(((c[2] * n[1] + c[1]) * n[0] + c[0]) as usize);
-            let mut kb;
-            if leap & OCCUPIED == 0 && i32::from(leap) >= LEAP_MIN {
-                let r = i32::from(leap) - 1;
-                let lo = c.map(|x| (x - r).max(0));
-                let hi: [i32; 3] = std::array::from_fn(|a| (c[a] + r).min(n[a] - 1));
-                let te = leave(0, lo[0], hi[0])
-                    .min(leave(1, lo[1], hi[1]))
-                    .min(leave(2, lo[2], hi[2]));
-                // The first sample at or past `te` (an estimate), and at least the next one.
-                let q = (te * inv_step).min(k1 as f32);
-                let kq = q as i32;
-                kb = (kq + i32::from((kq as f32) < q)).clamp(k + 1, k1);
-                // Samples `k..kb` are skipped once their last is in the cube (`k` is),
-                // settled by one sample where a rounding put the estimate past a face.
-                if !in_cube(cell3(&axes, kb - 1), &lo, &hi) {
-                    kb -= 1;
-                    if !in_cube(cell3(&axes, kb - 1), &lo, &hi) {
-                        kb = k + 1;
-                    }
-                }
+            let c = skip.cell(k);
+            let leap = skip.leap_of(c);
+            let kb;
+            if Skip::leaps(leap) {
+                kb = skip.leap_end(k, c, leap, k1);
                 if kb - k >= MIN_SKIP {
                     if k > pend && march(pend, k, acc, st) {
                         return;
                     }
-                    st.skipped_samples += (kb - k) as u64;
+                    skip.skipped += (kb - k) as u64;
                     pend = kb;
                 }
             } else {

@@ -5,14 +5,16 @@
 //! - `jitter`: seeded per-pixel offsets of the first sample (reproducible, off by default).
 //! - `sampler`: the trilinear sampler, the one definition of a sample's value.
 //! - `ray_caster`: whole-volume and per-box renders ([`RayCaster`]).
-//! - `occupancy` and `march`: the cells that can hold opacity for a classification, and
-//!   the whole-volume render that skips the others ([`RayCaster::render_march`]).
+//! - `occupancy`, `skip` and `march`: the cells that can hold opacity for a
+//!   classification, the exact leaps over the others, and the whole-volume render that
+//!   skips them ([`RayCaster::render_march`]).
 //! - `arch`: the sample loops, `arch/generic.rs` the scalar reference (and shading),
 //!   `arch/x86_64/{sse2,avx2}.rs` the vector loops that equal it bit for bit.
 
 mod arch;
 pub mod camera;
 pub mod families;
+mod frame_rays;
 pub mod image;
 pub mod jitter;
 mod lattice;
@@ -20,6 +22,7 @@ pub mod march;
 pub mod occupancy;
 pub mod ray_caster;
 pub(crate) mod sampler;
+mod skip;
 #[cfg(test)]
 mod test;
 #[cfg(test)]

@@ -29,7 +29,7 @@ pub(crate) const CELL_SHIFT: u32 = 2;
 /// The largest chessboard distance kept for an empty cell: a leap crosses at most
 /// `2·EMPTY_CAP − 1` cells along an axis. Each unit costs one pass of the rebuild.
 const EMPTY_CAP: u8 = 8;
-/// The bit of [`Occupancy::leap`] that marks an occupied cell.
+/// The bit of an [`Occupancy::leaps`] entry that marks an occupied cell.
 pub(crate) const OCCUPIED: u8 = 0x80;
 
 /// Trilinear cells per axis of a volume of `dims` voxels: `dims − 1`, and one cell (which
@@ -246,11 +246,10 @@ impl Occupancy {
         self.cell[(c[2] as usize * cy + c[1] as usize) * cx + c[0] as usize]
     }
 
-    /// The [`Occupancy::leap`] entry of the cell at linear index `i` (x fastest).
-    #[inline(always)]
+    /// Every cell's leap entry (see the field), x fastest.
     #[must_use]
-    pub(crate) fn leap_at(&self, i: usize) -> u8 {
-        self.leap[i]
+    pub(crate) fn leaps(&self) -> &[u8] {
+        &self.leap
     }
 
     /// Occupied cells, and all cells.

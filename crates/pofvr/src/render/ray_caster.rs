@@ -327,8 +327,8 @@ impl<'a> RayCaster<'a> {
         arch::march(&self.params, tri, ray, range, acc)
     }
 
-    /// What the sample loops need of this caster (tests compare the loops directly).
-    #[cfg(test)]
+    /// What the sample loops need of this caster (the march engine's loop, and tests
+    /// comparing the loops directly).
     pub(super) fn params(&self) -> MarchParams<'a> {
         self.params
     }

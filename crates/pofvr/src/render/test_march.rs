@@ -1,5 +1,6 @@
 //! The march engine against the reference: the same image bit for bit, and fewer samples.
 
+use super::frame_rays::FrameRays;
 use super::*;
 use crate::brick::BrickGrid;
 use crate::volume::phantom::Phantom;
@@ -22,19 +23,130 @@ fn compare(
     let caster = RayCaster::new(vol, &cls, settings);
     let (want, ref_st) = caster.render(cam);
     let occ = Occupancy::new(&CellRanges::new(vol), &cls);
-    let (got, st) = caster.render_march(cam, &occ);
-    for (i, (g, w)) in got.pixels().iter().zip(want.pixels()).enumerate() {
-        assert_eq!(
-            g.map(f32::to_bits),
-            w.map(f32::to_bits),
-            "pixel {i} ({}, {}): march {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
-            i as u32 % cam.width,
-            i as u32 / cam.width,
-            cam.projection
-        );
+    let mut first = None;
+    // The AVX2 loop that tests the cells itself (where the CPU has it), and the walk
+    // around the one-sample loop.
+    for avx2 in [true, false] {
+        let caster = RayCaster::new(vol, &cls, settings).with_avx2(avx2);
+        let (got, st) = caster.render_march(cam, &occ);
+        for (i, (g, w)) in got.pixels().iter().zip(want.pixels()).enumerate() {
+            assert_eq!(
+                g.map(f32::to_bits),
+                w.map(f32::to_bits),
+                "pixel {i} ({}, {}): march ({}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
+                i as u32 % cam.width,
+                i as u32 / cam.width,
+                caster.simd(),
+                cam.projection
+            );
+        }
+        assert_eq!(st.rays.rays, ref_st.rays, "rays that met the volume");
+        if settings.ert > 1.0 {
+            // Without termination every lattice sample is either taken or skipped.
+            assert_eq!(
+                st.rays.samples + st.skipped_samples,
+                ref_st.samples,
+                "{st:?}"
+            );
+        }
+        first.get_or_insert(st);
     }
-    assert_eq!(st.rays.rays, ref_st.rays, "rays that met the volume");
-    (ref_st, st)
+    (ref_st, first.unwrap())
+}
+
+/// A `dims` volume of zeros holding `blob` (value 200) in the voxels `lo..hi`.
+fn blob_volume(dims: [usize; 3], lo: [usize; 3], hi: [usize; 3]) -> Volume {
+    let mut v = vec![0u8; dims.iter().product()];
+    for z in lo[2]..hi[2] {
+        for y in lo[1]..hi[1] {
+            for x in lo[0]..hi[0] {
+                v[(z * dims[1] + y) * dims[0] + x] = 200;
+            }
+        }
+    }
+    Volume::new(dims, [1.0; 3], VoxelData::U8(Voxels::owned(v)), "blob").unwrap()
+}
+
+/// A one-basis family opaque from `from` up.
+fn opaque_above(from: f32) -> TransferFunction {
+    TransferFunction::from_json(
+        &format!(
+            r#"{{"bases":[{{"name":"b","opacity":[[0,0],[{from},0],[{},0.4],[255,0.4]]}}],"color":[[0,1,0.5,0.2],[255,0.2,0.5,1]]}}"#,
+            from + 1.0
+        ),
+        "above",
+    )
+    .unwrap()
+}
+
+#[test]
+fn march_leaps_through_long_empty_space_exactly() {
+    // A small blob at one end of a long empty volume: rays along x cross up to 40 empty
+    // cells, more than one cube of the distance cap, so leaps follow each other, land in
+    // the cells next to the blob, and go on past it.
+    let vol = blob_volume([160, 36, 36], [120, 12, 14], [131, 23, 22]);
+    let tf = opaque_above(50.0);
+    for (az, el) in [
+        (90.0, 0.0),
+        (-90.0, 0.0),
+        (75.0, 8.0),
+        (100.0, -12.0),
+        (0.0, 0.0),
+    ] {
+        for projection in [Projection::Orthographic, Projection::Perspective] {
+            for shade in [false, true] {
+                let settings = RenderSettings {
+                    ert: 2.0,
+                    shade,
+                    ..RenderSettings::default()
+                };
+                let cam = Camera::orbit(&vol, az, el, 40, 24, projection);
+                let (reference, march) = compare(&vol, &tf, &[1.0], settings, &cam);
+                assert!(
+                    march.rays.samples * 4 < reference.samples,
+                    "view {az},{el} {projection:?}: {march:?} vs {reference:?}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn march_rays_grazing_cell_faces_equal_the_reference() {
+    // Orthographic views along the axes whose pixel centres fall on whole voxel
+    // positions, multiples of the cell size among them: rays run inside the faces between
+    // occupancy cells (and between empty and occupied ones), where the sampler's floor and
+    // the cells' bounds meet exactly.
+    let vol = blob_volume([33, 33, 33], [8, 8, 8], [13, 17, 12]);
+    let tf = opaque_above(20.0);
+    let c = 16.0;
+    for (dir, up) in [
+        ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+        ([0.0, -1.0, 0.0], [0.0, 0.0, 1.0]),
+        ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]),
+        ([1.0, 1.0, 0.0], [0.0, 0.0, 1.0]),
+    ] {
+        for shade in [false, true] {
+            let cam = Camera {
+                projection: Projection::Orthographic,
+                position: std::array::from_fn(|a| c - 40.0 * dir[a]),
+                focal_point: [c; 3],
+                view_up: up,
+                // One world unit per pixel, with pixel centres on whole positions: the
+                // image's centre line is at 16, and pixel i's centre at i + 0.5 − 16.5.
+                parallel_scale: 16.5,
+                view_angle: 30.0,
+                width: 33,
+                height: 33,
+            };
+            let settings = RenderSettings {
+                ert: 0.95,
+                shade,
+                ..RenderSettings::default()
+            };
+            compare(&vol, &tf, &[1.0], settings, &cam);
+        }
+    }
 }
 
 #[test]
@@ -306,4 +418,54 @@ fn occupancy_is_reused_while_the_opaque_bins_stay_and_rebuilt_when_they_change()
         ranges.occupancy(&both).occupied_cells(),
         Occupancy::new(&ranges, &both).occupied_cells()
     );
+}
+
+#[test]
+fn frame_rays_equal_the_casters_pixel_rays_bit_for_bit() {
+    let vol = Phantom::SheppLogan.generate(20);
+    let anisotropic = Volume::new(
+        [9, 7, 5],
+        [0.7, 1.3, 2.1],
+        VoxelData::U8(Voxels::owned(vec![0; 9 * 7 * 5])),
+        "aniso",
+    )
+    .unwrap();
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    for vol in [&vol, &anisotropic] {
+        let grid = BrickGrid::from_volume(vol, 8).unwrap();
+        let cls = SampledTf::new(&tf, grid.value_range()).classify(&[1.0, 1.0], 1.0);
+        for jitter in [None, Some(7)] {
+            let settings = RenderSettings {
+                step: 0.7,
+                jitter,
+                ..RenderSettings::default()
+            };
+            let caster = RayCaster::new(vol, &cls, settings);
+            for projection in [Projection::Orthographic, Projection::Perspective] {
+                for (az, el, w, h) in [(30.0, 20.0, 17, 11), (-100.0, 65.0, 8, 13)] {
+                    let cam = Camera::orbit(vol, az, el, w, h, projection);
+                    let frame = cam.frame();
+                    let rays = FrameRays::new(
+                        &cam,
+                        &frame,
+                        vol.spacing(),
+                        vol.unit(),
+                        jitter.map(|s| (s, settings.step)),
+                    );
+                    for y in 0..h {
+                        for x in 0..w {
+                            let (got, want) =
+                                (rays.ray(x, y), caster.pixel_ray(&cam, &frame, x, y));
+                            let bits = |r: IndexRay| [r.o, r.d, r.dir].map(|v| v.map(f32::to_bits));
+                            assert_eq!(
+                                bits(got),
+                                bits(want),
+                                "pixel {x},{y} {projection:?} {jitter:?}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
 }

@@ -17,6 +17,7 @@ pub struct SceneBuilder {
     brick_size: usize,
     grid: Option<BrickGrid>,
     settings: RenderSettings,
+    memory_budget: Option<u64>,
 }
 
 impl SceneBuilder {
@@ -27,6 +28,7 @@ impl SceneBuilder {
             brick_size: 16,
             grid: None,
             settings: RenderSettings::default(),
+            memory_budget: None,
         }
     }
 
@@ -63,6 +65,16 @@ impl SceneBuilder {
         self
     }
 
+    /// At most this many bytes of voxels in memory for the bricks ([`crate::store`]): a
+    /// volume larger than the budget is rendered by the brick engine, each brick read on
+    /// demand (from the file for raw, NRRD and MetaImage raw data) into an LRU cache within
+    /// the budget, and its bricks' ranges measured by streaming the file. `None` (the
+    /// default), or a volume that fits, samples the whole volume. The images are the same.
+    pub fn memory_budget(mut self, bytes: Option<u64>) -> Self {
+        self.memory_budget = bytes;
+        self
+    }
+
     /// Checks the settings and the family's weights, bricks the volume (unless given a
     /// grid) and tabulates the family over its value range.
     ///
@@ -75,9 +87,11 @@ impl SceneBuilder {
         super::check_weights(&self.family, &self.family.weights)?;
         let grid = match self.grid {
             Some(g) => g,
-            None => BrickGrid::from_volume(&self.volume, self.brick_size)?,
+            None => crate::store::grid_for(&self.volume, self.brick_size, self.memory_budget)?,
         };
-        let job = RenderJob::with_grid(self.volume, self.family, grid, self.settings)?;
+        let store = crate::store::cache_for(&self.volume, self.memory_budget)?;
+        let mut job = RenderJob::with_grid(self.volume, self.family, grid, self.settings)?;
+        job.store = store;
         Ok(Scene::adopt(job))
     }
 }

@@ -124,6 +124,13 @@ impl Scene {
         }
     }
 
+    /// The brick store the brick engine reads from under a memory budget
+    /// ([`SceneBuilder::memory_budget`]); `None` when the scene samples the whole volume.
+    #[must_use]
+    pub fn store(&self) -> Option<&crate::store::BrickCache> {
+        self.job.store.as_deref()
+    }
+
     /// The volume.
     #[must_use]
     pub fn volume(&self) -> &Volume {
@@ -338,9 +345,15 @@ impl Scene {
         let same_bases = family.bases.len() == self.job.tf.bases.len()
             && family.bases_fingerprint() == self.job.tf.bases_fingerprint();
         let v = &self.job.volume;
-        let data = copy_voxels(v.data());
-        let volume = Volume::new(v.dims(), v.spacing(), data, v.source())?;
-        let job = RenderJob::with_grid(volume, family, self.job.grid.clone(), self.job.settings)?;
+        // A mapped volume is shared, not copied: under a memory budget a copy would bring
+        // the whole file into memory.
+        let volume = match v.share() {
+            Some(shared) => shared,
+            None => Volume::new(v.dims(), v.spacing(), copy_voxels(v.data()), v.source())?,
+        };
+        let mut job =
+            RenderJob::with_grid(volume, family, self.job.grid.clone(), self.job.settings)?;
+        job.store = self.job.store.clone();
         let scene = Scene {
             job,
             pofs: self.pofs.clone().filter(|_| same_bases),
@@ -406,11 +419,12 @@ impl Scene {
 
     /// The engine `req` is rendered with: its own, or by default [`Engine::March`] for one
     /// rank with no culling on a scene holding the whole volume, [`Engine::Bricks`]
-    /// otherwise.
+    /// otherwise (a budgeted scene whose volume does not fit reads bricks on demand).
     ///
     /// # Errors
     /// [`Error::Engine`] when `req` asks the march engine for culling, more than one rank,
-    /// or a scene that holds private brick copies instead of the volume.
+    /// a scene that holds private brick copies instead of the volume, or one whose volume
+    /// does not fit its memory budget ([`SceneBuilder::memory_budget`]).
     pub fn engine(&self, req: &FrameRequest<'_>) -> Result<Engine> {
         let why = if req.ranks > 1 {
             Some(format!("it renders one process, got {} ranks", req.ranks))
@@ -422,7 +436,13 @@ impl Scene {
         } else if self.job.bricks.is_some() {
             Some("it needs the whole volume, the scene holds brick copies".to_owned())
         } else {
-            None
+            self.job.store.as_ref().map(|store| {
+                format!(
+                    "it needs the whole lattice, and the volume ({} bytes) does not fit the memory budget of {} bytes (the brick engine reads only the bricks it renders)",
+                    crate::store::volume_bytes(&self.job.volume),
+                    store.budget()
+                )
+            })
         };
         match (req.engine, why) {
             (Some(Engine::March), Some(why)) => Err(Error::Engine {

@@ -238,6 +238,9 @@ pub struct Volume {
     spacing: [f32; 3],
     data: VoxelData,
     source: String,
+    /// The file and layout the voxels are stored at uncompressed, when they are (raw,
+    /// NRRD and MetaImage raw data): what a brick store reads bricks from on demand.
+    raw_file: Option<(std::path::PathBuf, RawSpec)>,
 }
 
 impl Volume {
@@ -291,6 +294,7 @@ impl Volume {
             spacing,
             data,
             source,
+            raw_file: None,
         })
     }
 
@@ -360,6 +364,33 @@ impl Volume {
             VoxelData::I16(x) => x.release_pages(),
             VoxelData::F32(x) => x.release_pages(),
         }
+    }
+
+    /// The file and layout of the voxels when they are stored there uncompressed (raw,
+    /// NRRD and MetaImage raw data): positioned reads of it give any brick without touching
+    /// the rest ([`crate::store`]).
+    #[must_use]
+    pub fn raw_file(&self) -> Option<(&Path, &RawSpec)> {
+        self.raw_file.as_ref().map(|(p, s)| (p.as_path(), s))
+    }
+
+    /// A second handle on a memory-mapped volume, sharing the map (no copy), its file
+    /// included; `None` when the voxels are owned.
+    #[must_use]
+    pub fn share(&self) -> Option<Volume> {
+        let data = match &self.data {
+            VoxelData::U8(x) => VoxelData::U8(x.share()?),
+            VoxelData::U16(x) => VoxelData::U16(x.share()?),
+            VoxelData::I16(x) => VoxelData::I16(x.share()?),
+            VoxelData::F32(x) => VoxelData::F32(x.share()?),
+        };
+        Some(Volume {
+            dims: self.dims,
+            spacing: self.spacing,
+            data,
+            source: self.source.clone(),
+            raw_file: self.raw_file.clone(),
+        })
     }
 
     /// The stored voxels.

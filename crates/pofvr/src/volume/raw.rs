@@ -94,7 +94,9 @@ pub fn open(path: &Path, spec: &RawSpec) -> Result<Volume, VolumeError> {
         n,
         spec,
     );
-    Volume::new(spec.dims, spec.spacing, data, source)
+    let mut vol = Volume::new(spec.dims, spec.spacing, data, source)?;
+    vol.raw_file = Some((path.to_path_buf(), spec.clone()));
+    Ok(vol)
 }
 
 fn typed_from_map(map: Arc<Mmap>, offset: usize, n: usize, spec: &RawSpec) -> VoxelData {

@@ -122,6 +122,22 @@ impl<T: Voxel> Voxels<T> {
         self.len() == 0
     }
 
+    /// A second handle on memory-mapped voxels, sharing the map (no copy); `None` for
+    /// owned or borrowed voxels.
+    #[must_use]
+    pub fn share(&self) -> Option<Self> {
+        match &self.repr {
+            Repr::Mapped { map, offset, len } => Some(Voxels {
+                repr: Repr::Mapped {
+                    map: Arc::clone(map),
+                    offset: *offset,
+                    len: *len,
+                },
+            }),
+            _ => None,
+        }
+    }
+
     /// True when served from a memory map.
     #[must_use]
     pub fn is_mapped(&self) -> bool {

@@ -1,0 +1,196 @@
+//! The brick cache: decoded bricks, with their apron, kept within a byte budget and evicted
+//! least recently used first.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use super::BrickSource;
+use crate::brick::{BrickCopy, BrickGrid, BrickId};
+use crate::volume::{Volume, VolumeError};
+
+/// What one reader (a rank's frame) asked of a cache: counted by the caller, so that ranks
+/// sharing one cache (in-process ranks) each report their own reads.
+#[derive(Debug, Default)]
+pub struct ReadCounts {
+    bytes_read: AtomicU64,
+    bricks_read: AtomicU64,
+    cache_hits: AtomicU64,
+}
+
+impl ReadCounts {
+    /// Bytes read from the source.
+    #[must_use]
+    pub fn bytes_read(&self) -> u64 {
+        self.bytes_read.load(Ordering::Relaxed)
+    }
+
+    /// Bricks read from the source (misses).
+    #[must_use]
+    pub fn bricks_read(&self) -> u64 {
+        self.bricks_read.load(Ordering::Relaxed)
+    }
+
+    /// Bricks served from the cache.
+    #[must_use]
+    pub fn cache_hits(&self) -> u64 {
+        self.cache_hits.load(Ordering::Relaxed)
+    }
+
+    fn add(&self, bytes: u64, read: u64, hits: u64) {
+        self.bytes_read.fetch_add(bytes, Ordering::Relaxed);
+        self.bricks_read.fetch_add(read, Ordering::Relaxed);
+        self.cache_hits.fetch_add(hits, Ordering::Relaxed);
+    }
+}
+
+/// The cached bricks and their recency.
+#[derive(Debug, Default)]
+struct Lru {
+    /// Brick → (copy, last use).
+    held: HashMap<BrickId, (Arc<BrickCopy>, u64)>,
+    /// Last use → brick: the oldest first.
+    order: BTreeMap<u64, BrickId>,
+    clock: u64,
+    bytes: u64,
+    peak: u64,
+    evictions: u64,
+}
+
+impl Lru {
+    fn touch(&mut self, id: BrickId) -> Option<Arc<BrickCopy>> {
+        self.clock += 1;
+        let now = self.clock;
+        let (copy, used) = self.held.get_mut(&id)?;
+        self.order.remove(used);
+        *used = now;
+        self.order.insert(now, id);
+        Some(Arc::clone(copy))
+    }
+
+    fn insert(&mut self, id: BrickId, copy: &Arc<BrickCopy>, budget: u64) {
+        let size = copy.bytes() as u64;
+        if size > budget {
+            return;
+        }
+        while self.bytes + size > budget {
+            let Some((_, old)) = self.order.pop_first() else {
+                break;
+            };
+            if let Some((c, _)) = self.held.remove(&old) {
+                self.bytes -= c.bytes() as u64;
+                self.evictions += 1;
+            }
+        }
+        self.clock += 1;
+        self.held.insert(id, (Arc::clone(copy), self.clock));
+        self.order.insert(self.clock, id);
+        self.bytes += size;
+        self.peak = self.peak.max(self.bytes);
+    }
+}
+
+/// Bricks read on demand from a [`BrickSource`] and kept, with their one-voxel apron, in
+/// an LRU cache of at most `budget` bytes of voxels. A brick being rendered when it is
+/// evicted lives until its renderer lets go, so the bricks resident at once exceed the
+/// budget by at most one per rendering thread.
+#[derive(Debug)]
+pub struct BrickCache {
+    source: BrickSource,
+    budget: u64,
+    lru: Mutex<Lru>,
+    totals: ReadCounts,
+}
+
+/// What a cache has done since it was made, for `--stats`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct CacheSummary {
+    /// The budget in bytes.
+    pub budget_bytes: u64,
+    /// Voxel bytes cached now.
+    pub cached_bytes: u64,
+    /// The most voxel bytes cached at once.
+    pub cache_peak_bytes: u64,
+    /// Bricks evicted.
+    pub evictions: u64,
+    /// Bytes read from the source, over all frames.
+    pub bytes_read: u64,
+    /// Bricks read from the source, over all frames.
+    pub bricks_read: u64,
+    /// Bricks served from the cache, over all frames.
+    pub cache_hits: u64,
+}
+
+impl BrickCache {
+    /// A cache of at most `budget` bytes over `source`.
+    #[must_use]
+    pub fn new(source: BrickSource, budget: u64) -> Self {
+        BrickCache {
+            source,
+            budget,
+            lru: Mutex::default(),
+            totals: ReadCounts::default(),
+        }
+    }
+
+    /// The source.
+    #[must_use]
+    pub fn source(&self) -> &BrickSource {
+        &self.source
+    }
+
+    /// The budget in bytes.
+    #[must_use]
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Brick `id` of `grid` (cut from `volume`, the source's volume) with its apron: from
+    /// the cache, or read from the source and cached. `counts` gets the read or the hit.
+    ///
+    /// # Errors
+    /// [`VolumeError::Io`] naming the file when the read fails.
+    pub fn get(
+        &self,
+        volume: &Volume,
+        grid: &BrickGrid,
+        id: BrickId,
+        counts: &ReadCounts,
+    ) -> Result<Arc<BrickCopy>, VolumeError> {
+        let lru = || self.lru.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(copy) = lru().touch(id) {
+            counts.add(0, 0, 1);
+            self.totals.add(0, 0, 1);
+            return Ok(copy);
+        }
+        // Read outside the lock: other threads keep hitting while this one waits on the
+        // file. Two threads missing the same brick both read it (and both count it).
+        let (origin, dims) = BrickCopy::apron_box(grid, id);
+        let data = self.source.read_box(volume, origin, dims)?;
+        let copy = Arc::new(BrickCopy::from_parts(origin, dims, data));
+        let bytes = copy.bytes() as u64;
+        counts.add(bytes, 1, 0);
+        self.totals.add(bytes, 1, 0);
+        let mut l = lru();
+        if let Some(held) = l.touch(id) {
+            return Ok(held);
+        }
+        l.insert(id, &copy, self.budget);
+        Ok(copy)
+    }
+
+    /// Totals since the cache was made.
+    #[must_use]
+    pub fn summary(&self) -> CacheSummary {
+        let l = self.lru.lock().unwrap_or_else(PoisonError::into_inner);
+        CacheSummary {
+            budget_bytes: self.budget,
+            cached_bytes: l.bytes,
+            cache_peak_bytes: l.peak,
+            evictions: l.evictions,
+            bytes_read: self.totals.bytes_read(),
+            bricks_read: self.totals.bricks_read(),
+            cache_hits: self.totals.cache_hits(),
+        }
+    }
+}

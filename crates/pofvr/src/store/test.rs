@@ -1,0 +1,315 @@
+//! The brick store: positioned reads equal the volume, the streamed grid equals the mapped
+//! one, and budgeted frames equal unbudgeted ones bit for bit while evicting.
+
+use std::path::{Path, PathBuf};
+
+use super::*;
+use crate::brick::{BrickCopy, BrickGrid, BrickId};
+use crate::render::{families, Camera, Projection};
+use crate::scene::{Cull, Engine, FrameRequest, PofBuild, Predict, Scene};
+use crate::volume::phantom::Phantom;
+use crate::volume::{raw, Endian, RawSpec, Volume, VoxelData};
+use crate::with_voxels;
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("pofvr-store-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `volume` written as a raw file with `offset` bytes of header, in `endian` order.
+fn write_raw(volume: &Volume, dir: &Path, offset: usize, endian: Endian) -> (PathBuf, RawSpec) {
+    let mut bytes = vec![0xAB; offset];
+    with_voxels!(volume.data(), v => {
+        for x in v {
+            let b = bytemuck::bytes_of(x);
+            if endian == Endian::Big {
+                bytes.extend(b.iter().rev());
+            } else {
+                bytes.extend_from_slice(b);
+            }
+        }
+    });
+    let path = dir.join("vol.raw");
+    std::fs::write(&path, bytes).unwrap();
+    let mut spec = RawSpec::new(volume.dims(), volume.data_type());
+    spec.offset = offset as u64;
+    spec.endian = endian;
+    spec.spacing = volume.spacing();
+    (path, spec)
+}
+
+fn values(d: &VoxelData) -> Vec<f32> {
+    with_voxels!(d, v => v.iter().map(|x| crate::volume::Voxel::to_f32(*x)).collect())
+}
+
+/// A phantom of odd dimensions (bricks clipped on every high face) as i16.
+fn head_i16() -> Volume {
+    let v = Phantom::SheppLogan.generate_dims([37, 30, 41]);
+    let data = with_voxels!(v.data(), x => x.iter().map(|a| (crate::volume::Voxel::to_f32(*a) * 1000.0) as i16).collect::<Vec<i16>>());
+    Volume::new(
+        v.dims(),
+        v.spacing(),
+        VoxelData::I16(crate::volume::Voxels::owned(data)),
+        "head",
+    )
+    .unwrap()
+}
+
+#[test]
+fn positioned_reads_give_the_volumes_boxes_in_either_byte_order() {
+    let vol = head_i16();
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    for (endian, offset) in [(Endian::Little, 0), (Endian::Big, 7)] {
+        let dir = tmp(&format!("reads-{offset}"));
+        let (path, spec) = write_raw(&vol, &dir, offset, endian);
+        let opened = raw::open(&path, &spec).unwrap();
+        assert_eq!(opened.raw_file().map(|(p, _)| p), Some(path.as_path()));
+        let src = BrickSource::of(&opened).unwrap();
+        assert!(src.is_file());
+        for id in grid.ids() {
+            let (o, n) = BrickCopy::apron_box(&grid, id);
+            let read = src.read_box(&opened, o, n).unwrap();
+            let mem = BrickSource::Memory.read_box(&vol, o, n).unwrap();
+            assert_eq!(values(&read), values(&mem), "brick {id:?}");
+        }
+        // Whole planes and a whole slab, read in one call each.
+        let d = vol.dims();
+        for (o, n) in [([0, 3, 5], [d[0], 9, 4]), ([0, 0, 2], [d[0], d[1], 6])] {
+            let read = src.read_box(&opened, o, n).unwrap();
+            let mem = BrickSource::Memory.read_box(&vol, o, n).unwrap();
+            assert_eq!(values(&read), values(&mem));
+        }
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}
+
+#[test]
+fn the_streamed_grid_has_the_mapped_grids_ranges() {
+    let vol = head_i16();
+    let dir = tmp("grid");
+    let (path, spec) = write_raw(&vol, &dir, 3, Endian::Little);
+    let opened = raw::open(&path, &spec).unwrap();
+    let src = BrickSource::of(&opened).unwrap();
+    for (b, slab) in [(8, 1), (8, 1 << 20), (16, 4000), (5, 1)] {
+        let mapped = BrickGrid::from_volume(&vol, b).unwrap();
+        let streamed = measure_grid(&opened, &src, b, slab).unwrap();
+        assert_eq!(mapped.ranges(), streamed.ranges(), "brick {b}, slab {slab}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn the_cache_keeps_its_budget_evicting_the_least_recently_used() {
+    let vol = head_i16();
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let one = (0..3)
+        .map(|i| {
+            BrickCopy::apron_box(&grid, BrickId(i))
+                .1
+                .iter()
+                .product::<usize>() as u64
+                * 2
+        })
+        .max()
+        .unwrap();
+    // Room for two interior bricks.
+    let cache = BrickCache::new(BrickSource::Memory, 2 * one);
+    let counts = ReadCounts::default();
+    let get = |i: u32| cache.get(&vol, &grid, BrickId(i), &counts).unwrap();
+    let a = get(0);
+    assert_eq!(
+        values(a.data()),
+        values(BrickCopy::new(&vol, &grid, BrickId(0)).data())
+    );
+    get(1);
+    get(0); // hit: 1 is now the oldest
+    get(2); // evicts 1
+    get(0); // still held
+    get(1); // read again
+    assert_eq!(counts.cache_hits(), 2);
+    assert_eq!(counts.bricks_read(), 4);
+    let s = cache.summary();
+    assert!(s.cache_peak_bytes <= 2 * one, "{s:?}");
+    assert_eq!(s.evictions, 2);
+    assert_eq!(s.bricks_read, 4);
+    assert_eq!(counts.bytes_read(), s.bytes_read);
+}
+
+fn camera(v: &Volume, az: f64, size: u32) -> Camera {
+    Camera::orbit(v, az, 25.0, size, size, Projection::Perspective)
+}
+
+#[test]
+fn budgeted_frames_equal_unbudgeted_ones_in_every_cull_mode_and_rank_count() {
+    let vol = Phantom::SheppLogan.generate(40);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let dir = tmp("frames");
+    let (path, spec) = write_raw(&vol, &dir, 0, Endian::Little);
+    let build = PofBuild {
+        views: [4, 4],
+        ..PofBuild::default()
+    };
+    let plain = Scene::builder(raw::open(&path, &spec).unwrap(), tf.clone())
+        .brick_size(8)
+        .build()
+        .unwrap();
+    let table = plain.build_pofs(&build).unwrap();
+    let plain = plain.with_pofs(table).unwrap();
+    // A budget of a tenth of the volume: the bricks of one frame do not fit.
+    let budget = super::volume_bytes(&vol) / 10;
+    let held = Scene::builder(raw::open(&path, &spec).unwrap(), tf)
+        .brick_size(8)
+        .memory_budget(Some(budget))
+        .build()
+        .unwrap();
+    assert_eq!(held.grid().ranges(), plain.grid().ranges());
+    let table = held.build_pofs(&build).unwrap();
+    let held = held.with_pofs(table).unwrap();
+    assert!(held.store().is_some_and(|s| s.source().is_file()));
+    let cam = camera(&vol, 30.0, 48);
+    let base = FrameRequest::new(&cam);
+    for ranks in [1, 3] {
+        let modes: [(Cull<'_>, Cull<'_>); 6] = [
+            (Cull::None, Cull::None),
+            (Cull::Exact, Cull::Exact),
+            (plain.default_cull(), held.default_cull()),
+            (
+                Cull::PofSet(plain.pofs().unwrap()),
+                Cull::PofSet(held.pofs().unwrap()),
+            ),
+            (
+                Cull::Verified(Predict::Proxy),
+                Cull::Verified(Predict::Proxy),
+            ),
+            (
+                Cull::Verified(Predict::Nothing),
+                Cull::Verified(Predict::Nothing),
+            ),
+        ];
+        for (p, h) in modes {
+            // The brick engine on both sides: its blend order is not the march engine's.
+            let want = plain
+                .render(
+                    &base
+                        .clone()
+                        .engine(Engine::Bricks)
+                        .cull(p)
+                        .ranks(ranks)
+                        .threshold(0.9),
+                )
+                .unwrap();
+            let got = held
+                .render(&base.clone().cull(h).ranks(ranks).threshold(0.9))
+                .unwrap();
+            let what = format!("{:?} with {ranks} ranks", h.mode());
+            let differ = got
+                .image
+                .pixels()
+                .iter()
+                .zip(want.image.pixels())
+                .filter(|(a, b)| a != b)
+                .count();
+            assert_eq!(
+                differ, 0,
+                "pixels differ: {what}, {:?} vs {:?}",
+                got.stats.bricks, want.stats.bricks
+            );
+            assert_eq!(got.stats.engine, "bricks", "{what}");
+            let rendered: usize = got.stats.ranks.iter().map(|r| r.bricks_rendered).sum();
+            assert_eq!(
+                (got.stats.bricks_read + got.stats.cache_hits) as usize,
+                rendered,
+                "every rendered brick comes from the store: {what}"
+            );
+            assert!(got.stats.bricks_read > 0, "{what}");
+            assert!(got.stats.cache_peak_bytes <= budget, "{what}");
+            assert_eq!(got.stats.memory_budget, Some(budget));
+            assert_eq!(want.stats.bytes_read, 0);
+        }
+    }
+    // Without an engine named, a budgeted scene renders with the brick engine.
+    let none = held.render(&base).unwrap();
+    assert_eq!(none.stats.engine, "bricks");
+    let want = plain.render(&base.clone().engine(Engine::Bricks)).unwrap();
+    assert_eq!(none.image.pixels(), want.image.pixels());
+    assert_eq!(plain.render(&base).unwrap().stats.engine, "march");
+    assert!(held.store().unwrap().summary().evictions > 0);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_budget_the_volume_fits_keeps_the_whole_volume() {
+    let vol = Phantom::SheppLogan.generate(24);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let bytes = super::volume_bytes(&vol);
+    let s = Scene::builder(vol, tf)
+        .memory_budget(Some(bytes))
+        .build()
+        .unwrap();
+    assert!(s.store().is_none());
+    let cam = camera(s.volume(), 0.0, 16);
+    assert_eq!(
+        s.render(&FrameRequest::new(&cam)).unwrap().stats.engine,
+        "march"
+    );
+}
+
+#[test]
+fn a_second_frame_of_the_same_view_reads_nothing_when_its_bricks_fit() {
+    // A cube of 1.0 in empty space: only the 8 bricks around it are not empty.
+    let n = 64;
+    let data: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let inside = [i % n, (i / n) % n, i / (n * n)]
+                .iter()
+                .all(|c| (20..44).contains(c));
+            if inside {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let data = VoxelData::F32(crate::volume::Voxels::owned(data));
+    let vol = Volume::new([n; 3], [1.0; 3], data, "cube").unwrap();
+    let tf = families::auto_ramp(crate::brick::ValueRange { min: 0.0, max: 1.0 });
+    // Just under the volume: a store (over the in-memory volume), with room for the
+    // bricks a view renders, apron included.
+    let budget = super::volume_bytes(&vol) - 1;
+    let s = Scene::builder(vol, tf)
+        .memory_budget(Some(budget))
+        .build()
+        .unwrap();
+    assert_eq!(s.store().map(|c| c.source().kind()), Some("memory"));
+    let cam = camera(s.volume(), 10.0, 32);
+    let req = FrameRequest::new(&cam).cull(Cull::Exact);
+    let first = s.render(&req).unwrap();
+    assert!(first.stats.bricks_read > 0);
+    assert!(
+        first.stats.bytes_read <= budget,
+        "{} bytes",
+        first.stats.bytes_read
+    );
+    let second = s.render(&req).unwrap();
+    assert_eq!(first.image.pixels(), second.image.pixels());
+    assert_eq!(second.stats.bytes_read, 0);
+    assert_eq!(second.stats.cache_hits, first.stats.bricks_read);
+    assert_eq!(first.stats.bricks.visible as u64, first.stats.bricks_read);
+}
+
+#[test]
+fn a_file_cut_short_after_opening_is_an_error_naming_it() {
+    let vol = head_i16();
+    let dir = tmp("short");
+    let (path, spec) = write_raw(&vol, &dir, 0, Endian::Little);
+    let opened = raw::open(&path, &spec).unwrap();
+    let src = BrickSource::of(&opened).unwrap();
+    drop(opened);
+    std::fs::write(&path, [0u8; 100]).unwrap();
+    let e = src
+        .read_box(&vol, [0, 0, 30], [37, 30, 5])
+        .expect_err("read past the end");
+    assert!(e.to_string().contains(&path.display().to_string()), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
