@@ -120,6 +120,8 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
         "fig6_load_balance.svg",
         "fig8_tf_family.csv",
         "fig8_tf_family_exact.svg",
+        "fig8_tf_family_verified.svg",
+        "fig5_rank_breakdown_verified.svg",
         "fig8_k0_0.05_k1_1.png",
         "fig8_k0_0.25_k1_0.9.png",
         "fig8_k0_0.8_k1_0.5.png",
@@ -170,7 +172,14 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
 
     // Fig. 4: 18 views per measured method; the numbers are those `render --stats` gives.
     let fig4 = read_csv(&rep.join("fig4_culling_vs_view.csv"));
-    for m in ["none", "pof-table", "pof-cubic", "exact", "range-bound"] {
+    for m in [
+        "none",
+        "pof-table",
+        "pof-cubic",
+        "exact",
+        "range-bound",
+        "verified",
+    ] {
         let rows: Vec<_> = fig4.iter().filter(|r| r["method"] == m).collect();
         assert_eq!(rows.len(), 18, "{m}");
         let az: Vec<f64> = rows.iter().map(|r| num(r, "azimuth_deg")).collect();
@@ -182,6 +191,7 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
         (20.0, "exact"),
         (140.0, "exact"),
         (60.0, "pof-table"),
+        (100.0, "verified"),
     ] {
         let row = fig4
             .iter()
@@ -193,6 +203,7 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
             ("visible", "visible"),
             ("culled", "culled"),
             ("non_empty", "non_empty"),
+            ("repaired", "repaired"),
         ] {
             assert_eq!(
                 num(row, col),
@@ -221,6 +232,15 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
     let fig5 = read_csv(&rep.join("fig5_rank_breakdown.csv"));
     assert_eq!(fig5.iter().filter(|r| r["method"] == "none").count(), 4);
     assert_eq!(fig5.iter().filter(|r| r["method"] == primary).count(), 4);
+    // Verified culling's ranks report their verification; the others verify nothing.
+    let verified: Vec<_> = fig5.iter().filter(|r| r["method"] == "verified").collect();
+    assert_eq!(verified.len(), 4);
+    assert!(verified.iter().all(|r| num(r, "verify_ms") >= 0.0));
+    assert!(verified.iter().any(|r| num(r, "verify_ms") > 0.0));
+    assert!(fig5
+        .iter()
+        .filter(|r| r["method"] != "verified")
+        .all(|r| num(r, "verify_ms") == 0.0 && num(r, "frame_repaired") == 0.0));
     let none_samples: f64 = fig5
         .iter()
         .filter(|r| r["method"] == "none")
@@ -254,6 +274,18 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
         st["bricks"]["visible"].as_f64().unwrap()
     );
     assert_eq!(num(row, "culled"), st["bricks"]["culled"].as_f64().unwrap());
+    let row = fig8
+        .iter()
+        .find(|r| r["method"] == "verified" && r["k0"] == "0.25" && r["k1"] == "0.9")
+        .unwrap();
+    let st = render_stats(dir.path(), "0,0", "verified", Some("0.25,0.9"));
+    for col in ["visible", "culled", "repaired"] {
+        assert_eq!(
+            num(row, col),
+            st["bricks"][col].as_f64().unwrap(),
+            "fig 8 {col}"
+        );
+    }
 
     // The audit: 12 views × every measured culling method, zero pixels breaking the rule.
     let audit: serde_json::Value =
@@ -262,8 +294,8 @@ fn quick_report_on_the_phantom_is_complete_consistent_and_conservative() {
     let rows = read_csv(&rep.join("audit.csv"));
     assert_eq!(
         rows.len(),
-        12 * 4,
-        "12 views × (pof-table, pof-cubic, exact, range-bound)"
+        12 * 5,
+        "12 views × (pof-table, pof-cubic, exact, range-bound, verified)"
     );
     assert!(rows.iter().all(|r| num(r, "violations") == 0.0));
     assert!(

@@ -82,6 +82,7 @@ pub(crate) fn fig4(out: &mut ReportDir, f: &ViewSweep) -> Result<()> {
         "culled",
         "frame_ms",
         "samples",
+        "repaired",
     ]);
     for r in &f.rows {
         csv.push(vec![
@@ -93,23 +94,38 @@ pub(crate) fn fig4(out: &mut ReportDir, f: &ViewSweep) -> Result<()> {
             r.culled.into(),
             r.frame_ms.into(),
             r.samples.into(),
+            r.repaired.into(),
         ]);
     }
     out.csv("fig4_culling_vs_view.csv", &csv)?;
-    let lines: Vec<Line> = f
+    let series = |method: &str, y: fn(&pofvr::experiment::ViewRow) -> usize| {
+        f.rows
+            .iter()
+            .filter(|r| r.method == method)
+            .map(|r| (r.azimuth_deg, y(r) as f64))
+            .collect()
+    };
+    let mut lines: Vec<Line> = f
         .means
         .iter()
         .map(|m| Line {
             name: m.method.to_string(),
-            points: f
-                .rows
-                .iter()
-                .filter(|r| r.method == m.method)
-                .map(|r| (r.azimuth_deg, r.visible as f64))
-                .collect(),
+            points: series(m.method, |r| r.visible),
             dashed: false,
         })
         .collect();
+    // What verification repaired, dashed under the method's rendered bricks (which
+    // include them).
+    lines.extend(
+        f.means
+            .iter()
+            .filter(|m| m.mean_repaired > 0.0)
+            .map(|m| Line {
+                name: format!("{}: repaired", m.method),
+                points: series(m.method, |r| r.repaired),
+                dashed: true,
+            }),
+    );
     let svg = line_chart(
         "Visible bricks while rotating about the Y axis (elevation 0)",
         "azimuth (degrees)",
@@ -134,6 +150,9 @@ pub(crate) fn fig5(out: &mut ReportDir, f: &RankBreakdown) -> Result<()> {
         "comm_ms",
         "bytes_sent",
         "frame_ms",
+        "verify_ms",
+        "repair_ms",
+        "frame_repaired",
     ]);
     for fr in &f.frames {
         let ranks = &fr.stats.ranks;
@@ -149,6 +168,9 @@ pub(crate) fn fig5(out: &mut ReportDir, f: &RankBreakdown) -> Result<()> {
                 r.comm_ms.into(),
                 r.bytes_sent.into(),
                 fr.frame_ms.into(),
+                r.verify_ms.into(),
+                r.repair_ms.into(),
+                fr.repaired.into(),
             ]);
         }
         let stack = |name: &str, v: fn(&pofvr::frame::RankStats) -> f64| Stack {
@@ -289,6 +311,7 @@ pub(crate) fn fig8(
         "visible",
         "culled",
         "frame_ms",
+        "repaired",
     ]);
     for r in &f.rows {
         csv.push(vec![
@@ -299,6 +322,7 @@ pub(crate) fn fig8(
             r.visible.into(),
             r.culled.into(),
             r.frame_ms.into(),
+            r.repaired.into(),
         ]);
     }
     out.csv("fig8_tf_family.csv", &csv)?;
@@ -315,15 +339,26 @@ pub(crate) fn fig8(
             name: name.into(),
             values: rows.iter().map(|r| v(r) as f64).collect(),
         };
+        // Verified culling's rendered bricks split into those predicted visible and those
+        // repaired; the other methods repair nothing.
+        let stacks = if rows.iter().any(|r| r.repaired > 0) {
+            vec![
+                stack("visible as predicted", |r| r.visible - r.repaired),
+                stack("repaired", |r| r.repaired),
+                stack("culled", |r| r.culled),
+            ]
+        } else {
+            vec![
+                stack("visible", |r| r.visible),
+                stack("culled", |r| r.culled),
+            ]
+        };
         let svg = stacked_bars(
             &format!("Visible and culled bricks per weights, cull {name}"),
             &cats,
             &k_names(names),
             "non-empty bricks",
-            &[
-                stack("visible", |r| r.visible),
-                stack("culled", |r| r.culled),
-            ],
+            &stacks,
         )?;
         out.write(&format!("fig8_tf_family_{name}.svg"), svg.as_bytes())?;
     }
@@ -338,7 +373,7 @@ pub(crate) fn fig8(
         images.push(json!({
             "file": file, "k0": shortest(im.k0), "k1": im.k1.map(shortest),
             "method": im.method, "visible": im.visible, "culled": im.culled,
-            "non_empty": im.non_empty,
+            "non_empty": im.non_empty, "repaired": im.repaired,
         }));
     }
     let all: Vec<Image> = f.images.iter().map(|i| i.image.clone()).collect();
@@ -509,6 +544,7 @@ pub(crate) fn page(p: &Page<'_>, title: &str) -> String {
             "method",
             "mean visible bricks",
             "mean culled share of non-empty",
+            "mean repaired bricks",
         ],
         &p.fig4
             .means
@@ -518,6 +554,7 @@ pub(crate) fn page(p: &Page<'_>, title: &str) -> String {
                     m.method.to_string(),
                     format!("{:.1}", m.mean_visible),
                     format!("{:.1} %", 100.0 * m.mean_culled_fraction_of_non_empty),
+                    format!("{:.1}", m.mean_repaired),
                 ]
             })
             .collect::<Vec<_>>(),
@@ -529,8 +566,9 @@ pub(crate) fn page(p: &Page<'_>, title: &str) -> String {
 
     html.h2("3. Time per rank (paper Fig. 5)");
     html.p(&format!(
-        "{} in-process ranks, view {},{}, Hilbert curve; without culling and \
-         with culling by {}. Median of {} frame(s).",
+        "{} in-process ranks, view {},{}, Hilbert curve; without culling, \
+         with culling by {} and verified (predicted, verified while compositing, repaired). \
+         Median of {} frame(s).",
         plan.breakdown_ranks, plan.view[0], plan.view[1], p.primary, plan.reps
     ));
     html.table(
@@ -539,6 +577,7 @@ pub(crate) fn page(p: &Page<'_>, title: &str) -> String {
             "frame ms",
             "visible bricks",
             "culled bricks",
+            "repaired bricks",
             "max/mean samples",
         ],
         &p.fig5
@@ -550,6 +589,7 @@ pub(crate) fn page(p: &Page<'_>, title: &str) -> String {
                     format!("{:.2}", f.frame_ms),
                     f.visible.to_string(),
                     f.culled.to_string(),
+                    f.repaired.to_string(),
                     format!("{:.3}", f.load_balance_max_over_mean_samples),
                 ]
             })

@@ -21,6 +21,9 @@ pub struct RankFrame {
     pub culled: usize,
     /// Bricks rendered.
     pub visible: usize,
+    /// Bricks rendered after verification found them culled wrongly (verified culling;
+    /// 0 for the others). Counted in `visible`.
+    pub repaired: usize,
     /// Max over mean samples per rank.
     pub load_balance_max_over_mean_samples: f64,
     /// The frame's statistics, one entry per rank in `stats.ranks`.
@@ -66,6 +69,7 @@ pub fn rank_breakdown(
             frame_ms: st.frame_ms,
             culled: st.bricks.culled,
             visible: st.bricks.visible,
+            repaired: st.bricks.repaired,
             load_balance_max_over_mean_samples: load_balance(&st),
             stats: st,
         });

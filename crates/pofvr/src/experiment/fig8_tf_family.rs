@@ -34,6 +34,9 @@ pub struct TfFamilyRow {
     pub visible: usize,
     /// Bricks culled.
     pub culled: usize,
+    /// Bricks rendered after verification found them culled wrongly (verified culling;
+    /// 0 for the others). Counted in `visible`.
+    pub repaired: usize,
     /// Frame time.
     pub frame_ms: f64,
 }
@@ -53,6 +56,8 @@ pub struct PaperImage {
     pub culled: usize,
     /// Non-empty bricks.
     pub non_empty: usize,
+    /// Bricks repaired (verified culling; 0 for the others).
+    pub repaired: usize,
     /// The frame.
     #[serde(skip)]
     pub image: Image,
@@ -147,6 +152,7 @@ fn measure(
                     non_empty: st.bricks.non_empty,
                     visible: st.bricks.visible,
                     culled: st.bricks.culled,
+                    repaired: st.bricks.repaired,
                     frame_ms: st.frame_ms,
                 });
                 progress.inc();
@@ -165,6 +171,7 @@ fn measure(
             visible: st.bricks.visible,
             culled: st.bricks.culled,
             non_empty: st.bricks.non_empty,
+            repaired: st.bricks.repaired,
             image,
         });
         progress.inc();

@@ -47,6 +47,22 @@ impl Method<'_> {
         }
     }
 
+    /// Predict, verify, repair with the best predictor ([`crate::cull::Predictor::BEST`],
+    /// which needs no POFs): exact by construction, so the figures show what it renders
+    /// and repairs against the oracle.
+    #[must_use]
+    pub fn verified() -> Method<'static> {
+        Method {
+            name: "verified",
+            mode: CullMode::Verified,
+            bound: None,
+            missing: None,
+            conservative: true,
+            about: "predict (the low-resolution proxy), verify while compositing, repair the \
+                    wrongly culled bricks in one round",
+        }
+    }
+
     /// The sequential oracle.
     #[must_use]
     pub fn exact() -> Method<'static> {
@@ -75,7 +91,8 @@ pub fn range_bound(job: &RenderJob) -> RangeBound {
 }
 
 /// The methods the figures compare, in their order: none, POF tables, cubic POFs, POF
-/// sets (missing for `no_sets` when `pofs` has none), the oracle and the range bound.
+/// sets (missing for `no_sets` when `pofs` has none), the oracle, the range bound and
+/// verified culling.
 #[must_use]
 pub fn methods<'a>(pofs: &'a PofBuild, range: &'a RangeBound, no_sets: &'a str) -> Vec<Method<'a>> {
     let sets = pofs.sets();
@@ -115,6 +132,7 @@ pub fn methods<'a>(pofs: &'a PofBuild, range: &'a RangeBound, no_sets: &'a str) 
             about: "the POF culling path with a bound from each brick's value range alone \
                     (no precompute; the baseline POFs must beat)",
         },
+        Method::verified(),
     ]
 }
 

@@ -101,20 +101,37 @@ fn culling_vs_view_counts_every_view_and_pof_culls_within_the_oracle() {
         Method::none(),
         pof_method("pof-table", &p.table),
         Method::exact(),
+        Method::verified(),
     ];
     let f = culling_vs_view(&j, &methods, 0.95, SIZE, &NoProgress).unwrap();
     assert_eq!(f.azimuths.len(), 18);
     assert_eq!(f.rows.len(), 18 * methods.len());
+    let mut verified_culled = 0;
     for views in f.rows.chunks(methods.len()) {
-        let (none, pof, exact) = (&views[0], &views[1], &views[2]);
+        let (none, pof, exact, verified) = (&views[0], &views[1], &views[2], &views[3]);
         assert_eq!(none.culled, 0, "{none:?}");
         // A conservative bound culls only bricks that are hidden.
         assert!(pof.culled <= exact.culled, "{pof:?} vs {exact:?}");
+        // Verified culling renders what it predicted and what it repaired: the bricks
+        // on screen, as every method.
+        assert_eq!(
+            verified.visible + verified.culled,
+            none.visible,
+            "{verified:?}"
+        );
+        assert!(verified.repaired <= verified.visible, "{verified:?}");
+        verified_culled += verified.culled;
         for r in views {
             assert_eq!(r.non_empty, none.non_empty);
             assert!(r.visible + r.culled <= r.non_empty, "{r:?}");
+            if r.method != "verified" {
+                assert_eq!(r.repaired, 0, "{r:?}");
+            }
         }
     }
+    // What the proxy culls here is measured, not asserted: on this small phantom it
+    // predicts nothing hidden, and verification keeps the frame right either way.
+    eprintln!("verified culled {verified_culled} bricks over 18 views");
     let exact_culled: usize = f
         .rows
         .iter()
@@ -131,6 +148,8 @@ fn culling_vs_view_counts_every_view_and_pof_culls_within_the_oracle() {
         let v = rows.iter().map(|r| r.visible as f64).sum::<f64>() / 18.0;
         assert!((mean.mean_visible - v).abs() < 1e-9);
         assert!((0.0..=1.0).contains(&mean.mean_culled_fraction_of_non_empty));
+        let repaired = rows.iter().map(|r| r.repaired as f64).sum::<f64>() / 18.0;
+        assert!((mean.mean_repaired - repaired).abs() < 1e-9);
     }
 }
 
@@ -156,15 +175,30 @@ fn a_frame_with_one_core_per_rank_is_the_frame() {
 fn rank_breakdown_has_every_rank_and_they_render_the_visible_bricks() {
     let j = job();
     let r = range_bound(&j);
-    let methods = [Method::none(), pof_method("range-bound", &r)];
+    let methods = [
+        Method::none(),
+        pof_method("range-bound", &r),
+        Method::verified(),
+    ];
     let f = rank_breakdown(&j, &methods, &camera(&j), 0.95, 3, 1, &NoProgress).unwrap();
-    assert_eq!(f.frames.len(), 2);
+    assert_eq!(f.frames.len(), 3);
     for fr in &f.frames {
         assert_eq!(fr.ranks, 3);
         assert_eq!(fr.stats.ranks.len(), 3);
+        // Repaired bricks are rendered once, by their owners, as the predicted ones.
         let rendered: usize = fr.stats.ranks.iter().map(|r| r.bricks_rendered).sum();
         assert_eq!(rendered, fr.visible, "{}", fr.method);
+        assert_eq!(fr.repaired, fr.stats.bricks.repaired, "{}", fr.method);
         assert!(fr.load_balance_max_over_mean_samples >= 1.0);
+        let verified = fr.method == "verified";
+        assert_eq!(fr.stats.verified, verified, "{}", fr.method);
+        if !verified {
+            assert!(
+                fr.stats.ranks.iter().all(|r| r.verify_ms == 0.0),
+                "{}",
+                fr.method
+            );
+        }
     }
 }
 
@@ -204,7 +238,7 @@ fn tf_family_measures_each_weighting_and_restores_the_weights() {
     let (k0s, k1s) = weight_grid(true);
     let f = tf_family(
         &mut j,
-        &[m, Method::exact()],
+        &[m, Method::exact(), Method::verified()],
         &m,
         &cam,
         0.95,
@@ -213,13 +247,15 @@ fn tf_family_measures_each_weighting_and_restores_the_weights() {
     )
     .unwrap();
     assert_eq!(j.tf.weights, before);
-    assert_eq!(f.rows.len(), k0s.len() * k1s.len() * 3);
-    for w in f.rows.chunks(3) {
+    assert_eq!(f.rows.len(), k0s.len() * k1s.len() * 4);
+    for w in f.rows.chunks(4) {
         assert_eq!(
             w.iter().map(|r| r.method).collect::<Vec<_>>(),
-            ["none", "pof-table", "exact"]
+            ["none", "pof-table", "exact", "verified"]
         );
         assert!(w[1].culled <= w[2].culled, "{w:?}");
+        assert_eq!(w[3].visible + w[3].culled, w[0].visible, "{w:?}");
+        assert!(w[3].repaired <= w[3].visible, "{w:?}");
         assert!(w.iter().all(|r| r.k0 == w[0].k0 && r.k1 == w[0].k1));
     }
     assert_eq!(f.images.len(), PAPER_WEIGHTS.len());
@@ -245,7 +281,8 @@ fn the_audit_finds_no_conservative_method_breaking_the_rule() {
             "pof-cubic",
             "pof-set",
             "exact",
-            "range-bound"
+            "range-bound",
+            "verified"
         ]
     );
     assert!(all.iter().all(Method::available));
