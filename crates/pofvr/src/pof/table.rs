@@ -201,6 +201,22 @@ impl PofTable {
         self.check_bases(tf)
     }
 
+    /// The [`PofError::Mismatch`] of this table's file: `what` is `in_file` here but
+    /// `expected` by the caller.
+    fn mismatch(
+        &self,
+        what: &'static str,
+        in_file: String,
+        expected: String,
+    ) -> Result<(), PofError> {
+        Err(PofError::Mismatch {
+            file: self.source.clone(),
+            what,
+            in_file,
+            expected,
+        })
+    }
+
     /// Checks that the table was built for `volume` and `grid` (size, voxel type, brick
     /// size, brick value ranges), whatever the family.
     ///
@@ -208,14 +224,7 @@ impl PofTable {
     /// [`PofError::Mismatch`] naming what differs.
     pub fn check_grid(&self, volume: &Volume, grid: &BrickGrid) -> Result<(), PofError> {
         let m = &self.meta;
-        let mismatch = |what, in_file: String, expected: String| {
-            Err(PofError::Mismatch {
-                file: self.source.clone(),
-                what,
-                in_file,
-                expected,
-            })
-        };
+        let mismatch = |what, in_file, expected| self.mismatch(what, in_file, expected);
         let dims = volume.dims().map(|d| d as u64);
         if m.dims != dims {
             return mismatch("volume size", format!("{:?}", m.dims), format!("{dims:?}"));
@@ -253,14 +262,7 @@ impl PofTable {
     /// [`PofError::Mismatch`] naming what differs.
     pub fn check_bases(&self, tf: &TransferFunction) -> Result<(), PofError> {
         let m = &self.meta;
-        let mismatch = |what, in_file: String, expected: String| {
-            Err(PofError::Mismatch {
-                file: self.source.clone(),
-                what,
-                in_file,
-                expected,
-            })
-        };
+        let mismatch = |what, in_file, expected| self.mismatch(what, in_file, expected);
         if m.basis_count as usize != tf.bases.len() {
             return mismatch(
                 "transfer-function family (basis count)",
