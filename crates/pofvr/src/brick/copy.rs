@@ -22,7 +22,12 @@ pub struct BrickCopy {
     data: VoxelData,
 }
 
-fn copy_box<T: Voxel>(v: &[T], vdims: [usize; 3], lo: [usize; 3], n: [usize; 3]) -> Vec<T> {
+pub(crate) fn copy_box<T: Voxel>(
+    v: &[T],
+    vdims: [usize; 3],
+    lo: [usize; 3],
+    n: [usize; 3],
+) -> Vec<T> {
     let mut out = Vec::with_capacity(n[0] * n[1] * n[2]);
     for z in lo[2]..lo[2] + n[2] {
         for y in lo[1]..lo[1] + n[1] {

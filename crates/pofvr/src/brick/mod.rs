@@ -7,7 +7,7 @@
 //! each side; a brick can therefore be sampled on its own. Its value range is taken over
 //! exactly the voxels its samples can interpolate, so it bounds every sample in it.
 
-mod copy;
+pub(crate) mod copy;
 #[cfg(test)]
 mod test;
 

@@ -99,16 +99,8 @@ impl BrickSource {
 }
 
 fn copy_from_memory(volume: &Volume, lo: [usize; 3], n: [usize; 3]) -> VoxelData {
-    fn copy<T: Voxel>(v: &[T], vd: [usize; 3], lo: [usize; 3], n: [usize; 3]) -> Vec<T> {
-        let mut out = Vec::with_capacity(n[0] * n[1] * n[2]);
-        for z in lo[2]..lo[2] + n[2] {
-            for y in lo[1]..lo[1] + n[1] {
-                let row = lo[0] + vd[0] * (y + vd[1] * z);
-                out.extend_from_slice(&v[row..row + n[0]]);
-            }
-        }
-        out
-    }
+    // The brick engine's own box copy: the same rows, the same order.
+    use crate::brick::copy::copy_box as copy;
     let vd = volume.dims();
     match volume.data() {
         VoxelData::U8(x) => VoxelData::U8(Voxels::owned(copy(x.as_slice(), vd, lo, n))),
