@@ -335,3 +335,89 @@ fn the_streamed_proxy_is_the_mapped_proxy() {
         );
     }
 }
+
+/// The proxy's effective extinction of every cell, computed densely and directly from the
+/// definition (cell voxels sorted by bin, four near-equal groups, each group's mean
+/// extinction per basis, shares from the groups' sizes): what the sparse proxy must equal.
+/// Also the number of cells where some basis is not transparent.
+fn dense_extinction(
+    vol: &Volume,
+    sampled: &crate::render::SampledTf,
+    w: &[f32],
+) -> (Vec<f32>, usize) {
+    use crate::cull::proxy::{CORRELATION_LENGTH as L, PROXY_CELL as C, PROXY_GROUPS as G};
+    let d = vol.dims();
+    let cells = d.map(|n| n.div_ceil(C));
+    let v = values(vol.data());
+    let mut out = Vec::new();
+    let mut seen = 0;
+    for z in 0..cells[2] {
+        for y in 0..cells[1] {
+            for x in 0..cells[0] {
+                let mut bins = Vec::new();
+                for zz in z * C..((z + 1) * C).min(d[2]) {
+                    for yy in y * C..((y + 1) * C).min(d[1]) {
+                        for xx in x * C..((x + 1) * C).min(d[0]) {
+                            bins.push(sampled.bin(v[xx + d[0] * (yy + d[1] * zz)]));
+                        }
+                    }
+                }
+                bins.sort_unstable();
+                let opaque =
+                    |i: &usize| (0..sampled.basis_count()).any(|b| sampled.tau_table(b)[*i] > 0.0);
+                seen += usize::from(bins.iter().any(opaque));
+                let n = bins.len();
+                let transmit: f32 = (0..G)
+                    .map(|g| {
+                        let part = &bins[g * n / G..(g + 1) * n / G];
+                        if part.is_empty() {
+                            return 0.0;
+                        }
+                        let e: f32 = (0..sampled.basis_count())
+                            .zip(w)
+                            .filter(|(_, k)| **k > 0.0)
+                            .map(|(b, k)| {
+                                let t = sampled.tau_table(b);
+                                let s: f64 = part.iter().map(|&i| f64::from(t[i])).sum();
+                                k * (s / part.len() as f64) as f32
+                            })
+                            .sum();
+                        part.len() as f32 / n as f32 * (-e * L).exp()
+                    })
+                    .sum();
+                out.push(-transmit.max(f32::MIN_POSITIVE).ln() / L);
+            }
+        }
+    }
+    (out, seen)
+}
+
+#[test]
+fn the_proxy_stores_only_cells_some_basis_sees_and_equals_the_dense_definition() {
+    use crate::cull::proxy::{Proxy, PROXY_CELL, PROXY_GROUPS};
+    // Odd dimensions: the cells on every high face are cut short, so their shares differ.
+    let vol = Phantom::Body.generate_dims([45, 38, 29]);
+    let tf = families::for_phantom(Phantom::Body);
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let sampled = crate::render::SampledTf::new(&tf, grid.value_range());
+    let proxy = Proxy::new(&vol, &sampled);
+    for w in [[1.0, 1.0], [0.0, 2.5], [0.3, 0.0]] {
+        assert_eq!(
+            proxy.extinction(&w),
+            dense_extinction(&vol, &sampled, &w).0,
+            "{w:?}"
+        );
+    }
+    // Cells where either basis is opaque somewhere: the only ones with stored groups.
+    let cells: usize = vol.dims().map(|n| n.div_ceil(PROXY_CELL)).iter().product();
+    let seen = dense_extinction(&vol, &sampled, &[1.0, 1.0]).1;
+    assert!(seen > 0 && seen < cells, "{seen} of {cells} cells seen");
+    let f = std::mem::size_of::<f32>() as u64;
+    let dense = cells as u64 * PROXY_GROUPS as u64 * f * 3;
+    let sparse = cells as u64 * f + (seen * PROXY_GROUPS * 2) as u64 * f;
+    assert!(
+        proxy.heap_bytes() <= sparse && proxy.heap_bytes() < dense,
+        "{} heap bytes; {sparse} sparse, {dense} dense",
+        proxy.heap_bytes()
+    );
+}
