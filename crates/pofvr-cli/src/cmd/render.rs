@@ -137,7 +137,14 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     let max_dim = resolve::size(&a.view.size)
         .ok()
         .map(|(w, h)| 2 * w.max(h) as usize);
-    let vol = resolve::volume_for(&a.volume, max_dim)?;
+    let budget = a
+        .memory_budget
+        .as_deref()
+        .map(pofvr::store::parse_size)
+        .transpose()
+        .map_err(|e| anyhow!("--memory-budget: {e}"))?;
+    // A Zarr level larger than the budget is not decoded: the store decodes its chunks.
+    let vol = resolve::volume_deferring(&a.volume, max_dim, budget)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
     let cam = resolve::camera(&a.view, &vol)?;
     let curve: Curve = a
@@ -145,12 +152,6 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         .curve
         .parse()
         .map_err(|e| anyhow::anyhow!("--curve: {e}"))?;
-    let budget = a
-        .memory_budget
-        .as_deref()
-        .map(pofvr::store::parse_size)
-        .transpose()
-        .map_err(|e| anyhow!("--memory-budget: {e}"))?;
     // An MPI rank measures only its own bricks (the backend's grid) and keeps copies of
     // them; one process under a budget streams the file once instead.
     let grid = match budget {
