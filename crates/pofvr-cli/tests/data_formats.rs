@@ -198,3 +198,84 @@ fn convert_writes_ome_zarr_that_every_command_opens() {
         &["body.zarr", "z.png", "s.json"],
     );
 }
+
+#[test]
+fn a_zarr_level_larger_than_the_budget_renders_from_chunks_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = pofvr(
+        &["convert", "phantom:body:160x128x200", "b.zarr", "--quiet"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/ct-chest-skin-bone.json");
+    let tf = tf.to_str().unwrap();
+    let render = |extra: &[&str], raw: &str, stats: &str| {
+        let mut args = vec![
+            "render",
+            "b.zarr",
+            "--level",
+            "0",
+            "--tf",
+            tf,
+            "--size",
+            "48x48",
+            "-o",
+            "f.png",
+            "--out-raw",
+            raw,
+            "--stats",
+            stats,
+            "--cull",
+            "verified",
+        ];
+        args.extend_from_slice(extra);
+        let o = pofvr(&args, dir.path());
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        let s: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join(stats)).unwrap())
+                .unwrap();
+        (std::fs::read(dir.path().join(raw)).unwrap(), s)
+    };
+    // The level is 8.2 MB in 24 chunks of 64³ (512 KB decoded): a 4 MB budget holds four
+    // decoded chunks and 2 MB of bricks, evicting both.
+    let (want, _) = render(&["--engine", "bricks"], "a.raw", "a.json");
+    for ranks in ["1", "3"] {
+        let (got, s) = render(
+            &["--memory-budget", "4M", "--ranks", ranks],
+            &format!("b{ranks}.raw"),
+            &format!("b{ranks}.json"),
+        );
+        assert!(got == want, "{ranks} ranks: the budgeted frame differs");
+        let m = &s["memory_budget"];
+        assert_eq!(m["source"], "zarr chunks", "{s}");
+        assert!(
+            m["zarr_chunks"]["chunk_evictions"].as_u64().unwrap() > 0,
+            "{s}"
+        );
+        assert!(m["cache"]["evictions"].as_u64().unwrap() > 0, "{s}");
+        assert!(m["cache"]["bytes_read"].as_u64().unwrap() > 0, "{s}");
+    }
+    // The whole-volume pass cannot run from chunks: a clear error, exit code 2, no image.
+    let o = pofvr(
+        &[
+            "render",
+            "b.zarr",
+            "--level",
+            "0",
+            "--tf",
+            tf,
+            "--size",
+            "48x48",
+            "-o",
+            "w.png",
+            "--memory-budget",
+            "4M",
+            "--whole",
+        ],
+        dir.path(),
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("b.zarr") && e.contains("memory budget"), "{e}");
+    assert!(!dir.path().join("w.png").exists());
+}

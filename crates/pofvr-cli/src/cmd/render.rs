@@ -382,6 +382,17 @@ fn budget_json(scene: &Scene, budget: u64) -> Result<serde_json::Value> {
                     .into(),
             );
             m.insert("cache".into(), serde_json::to_value(store.summary())?);
+            if let Some(z) = store.source().zarr() {
+                m.insert(
+                    "zarr_chunks".into(),
+                    serde_json::json!({
+                        "chunk_budget_bytes": z.chunk_budget(),
+                        "chunk_shape": z.level().chunk_shape(),
+                        "chunks_decoded": z.chunks_decoded(),
+                        "chunk_evictions": z.chunk_evictions(),
+                    }),
+                );
+            }
         }
         None => {
             m.insert(

@@ -56,9 +56,12 @@ pub fn cache_for(volume: &Volume, budget: Option<u64>) -> Result<Option<Arc<Bric
     match budget {
         Some(b) if !fits(volume, b) => {
             let source = BrickSource::of(volume)?;
-            // A Zarr level's decoded chunks take a quarter of the budget, its bricks the rest.
+            // A Zarr level's decoded chunks take half the budget, its bricks the rest: within a
+            // frame chunks are what is reused (each brick is read once), and a frame's working
+            // front of chunks must stay cached for each to be decoded about once (measured:
+            // a quarter decoded the 512x512x1728 body's chunks 1.7 times each, a half 1.1).
             if let Some(z) = source.zarr() {
-                z.set_chunk_budget(b / 4);
+                z.set_chunk_budget(b / 2);
             }
             Ok(Some(Arc::new(BrickCache::new(source, b))))
         }
@@ -81,7 +84,7 @@ pub fn grid_for(volume: &Volume, brick_size: usize, budget: Option<u64>) -> Resu
     if let Some(b) = budget {
         let source = BrickSource::of(volume)?;
         if let Some(z) = source.zarr() {
-            z.set_chunk_budget(b / 4);
+            z.set_chunk_budget(b / 2);
         }
         if source.is_file() {
             return measure_grid(volume, &source, brick_size, b / 4);

@@ -239,7 +239,7 @@ fn budgeted_zarr_frames_equal_decoded_frames_bit_for_bit() {
         let s = held.store().unwrap();
         assert!(s.summary().evictions > 0);
         let z = s.source().zarr().unwrap();
-        assert_eq!(z.chunk_budget(), budget / 4);
+        assert_eq!(z.chunk_budget(), budget / 2);
         assert!(z.chunks_decoded() > 0);
         // The compressed bytes read are counted, not the decoded ones.
         assert!(s.summary().bytes_read > 0);
