@@ -14,6 +14,7 @@
 //! unless asked otherwise.
 
 mod cache;
+mod own;
 mod scan;
 mod size;
 mod source;
@@ -26,6 +27,7 @@ mod zarr_source;
 use std::sync::Arc;
 
 pub use cache::{BrickCache, CacheSummary, ReadCounts};
+pub use own::measure_own;
 pub use scan::measure_grid;
 pub use size::parse_size;
 pub use source::BrickSource;

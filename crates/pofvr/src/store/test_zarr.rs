@@ -285,3 +285,71 @@ fn a_chunk_removed_after_opening_is_an_error_naming_it() {
     assert!(e.contains("c/1/1/1"), "{e}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn distributed_ranks_read_only_their_own_bricks_from_the_chunks() {
+    use crate::comm::LocalCommunicator;
+    use crate::distribute::setup::DistributedRank;
+    use crate::distribute::Curve;
+    use crate::frame::{FrameOptions, RenderJob};
+    use crate::render::RenderSettings;
+    let vol = body();
+    let tf = families::for_phantom(Phantom::Body);
+    let dir = tmp("ranks");
+    let path = write_array(&vol, &dir, "a", [13, 9, 11]);
+    let whole = BrickGrid::from_volume(&vol, 8).unwrap();
+    let budget = volume_bytes(&vol) / 10;
+    let cam = camera(&vol, 30.0, 40);
+    let plain = RenderJob::with_grid(
+        Volume::open(&path, None).unwrap(),
+        tf.clone(),
+        whole.clone(),
+        RenderSettings::default(),
+    )
+    .unwrap();
+    for cull in [crate::cull::CullMode::None, crate::cull::CullMode::Verified] {
+        let opts = FrameOptions {
+            cull,
+            ..FrameOptions::default()
+        };
+        let (want, _) = crate::frame::render_frame(&plain, None, &cam, &opts).unwrap();
+        for n in [1, 3] {
+            let out = LocalCommunicator::run(n, |comm| {
+                let opened = Volume::open_with(
+                    &path,
+                    &OpenOptions {
+                        defer_above: Some(budget),
+                        ..OpenOptions::default()
+                    },
+                )
+                .unwrap();
+                let rank = DistributedRank::new(comm);
+                let grid = rank
+                    .measure_grid_within(&opened, 8, Curve::Hilbert, Some(budget))
+                    .unwrap();
+                assert_eq!(grid.ranges(), whole.ranges());
+                let mut job =
+                    RenderJob::with_grid(opened, tf.clone(), grid, RenderSettings::default())
+                        .unwrap();
+                rank.read_own_bricks(&mut job, Curve::Hilbert, 1, budget)
+                    .unwrap();
+                assert!(job.bricks.is_none() && job.store.is_some());
+                rank.frame(&job, None, &cam, &opts).unwrap()
+            });
+            let (image, stats) = out[0].clone().expect("rank 0 has the frame");
+            let what = format!("{cull:?}, {n} ranks");
+            assert!(image.pixels() == want.pixels(), "pixels differ: {what}");
+            assert_eq!(stats.ranks.len(), n);
+            for r in &stats.ranks {
+                // Each rank read exactly the bricks it rendered, from its own store.
+                assert_eq!(
+                    r.bricks_read + r.cache_hits,
+                    r.bricks_rendered as u64,
+                    "{what}"
+                );
+                assert!(r.bytes_read > 0, "{what}: rank {} read nothing", r.rank);
+            }
+        }
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
