@@ -104,9 +104,9 @@ impl<'c> DistributedRank<'c> {
         self.measure_grid_within(volume, brick_size, curve, None)
     }
 
-    /// [`DistributedRank::measure_grid`] under a memory budget: a volume whose voxels are
-    /// not resident (a Zarr level larger than the budget) has this rank's bricks read from
-    /// its chunks, at most half the budget (64 MiB without one) of decoded chunks cached.
+    /// [`DistributedRank::measure_grid`] under a memory budget: a volume that does not fit
+    /// it has this rank's bricks read from storage ([`crate::store::measure_own`]: positioned
+    /// reads of a raw file, or a Zarr level's chunks), not through the memory map.
     ///
     /// # Errors
     /// As [`DistributedRank::measure_grid`], and [`SetupError::Store`] for a missing or
@@ -118,12 +118,7 @@ impl<'c> DistributedRank<'c> {
         curve: Curve,
         budget: Option<u64>,
     ) -> Result<BrickGrid, SetupError> {
-        let result = self.measure_grid_inner(
-            volume,
-            brick_size,
-            curve,
-            budget.map_or(64 << 20, |b| b / 2),
-        );
+        let result = self.measure_grid_inner(volume, brick_size, curve, budget);
         if let Err(e) = &result {
             if !e.is_abort() {
                 self.comm.abort(&e.to_string());
@@ -137,12 +132,12 @@ impl<'c> DistributedRank<'c> {
         volume: &Volume,
         brick_size: usize,
         curve: Curve,
-        chunk_budget: u64,
+        budget: Option<u64>,
     ) -> Result<BrickGrid, SetupError> {
         let counts = BrickGrid::counts_for(volume.dims(), brick_size)?;
         let owners = BrickAssignment::new(counts, curve, self.comm.size())?;
         let me = self.comm.rank();
-        let mut grid = crate::store::measure_own(volume, brick_size, chunk_budget, &|id| {
+        let mut grid = crate::store::measure_own(volume, brick_size, budget, &|id| {
             owners.owner(id) == Some(me)
         })
         .map_err(|e| match e {

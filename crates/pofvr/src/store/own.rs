@@ -11,26 +11,33 @@ use crate::volume::{Volume, Voxel};
 use crate::with_voxels;
 
 /// The grid of `volume` in bricks of `brick_size` with the ranges of the bricks `measure`
-/// picks (the others empty, to be set from elsewhere): measured on the voxels when they are
-/// resident (a memory map reads only the pages of those bricks), otherwise read brick by
-/// brick from the volume's Zarr chunks with at most `chunk_budget` bytes of decoded chunks
-/// cached.
+/// picks (the others empty, to be set from elsewhere). Under a `budget` the volume does not
+/// fit, or when its voxels are not resident, each picked brick is read from the volume's
+/// storage: positioned reads of its raw file (a memory map would keep every page touched
+/// resident, and a rank's bricks are spread over the whole file), or its Zarr chunks with
+/// at most half the budget (64 MiB without one) of decoded chunks cached. Otherwise the
+/// bricks are measured on the voxels.
 ///
 /// # Errors
-/// [`crate::Error::Brick`] for a bad brick size, [`crate::Error::Volume`] for a missing or
-/// corrupt chunk.
+/// [`crate::Error::Brick`] for a bad brick size, [`crate::Error::Volume`] for a failed read
+/// or a missing or corrupt chunk.
 pub fn measure_own(
     volume: &Volume,
     brick_size: usize,
-    chunk_budget: u64,
+    budget: Option<u64>,
     measure: &(dyn Fn(BrickId) -> bool + Sync),
 ) -> Result<BrickGrid> {
-    if volume.is_resident() {
+    let over = budget.is_some_and(|b| !super::fits(volume, b));
+    let source = if over || !volume.is_resident() {
+        BrickSource::of(volume)?
+    } else {
+        BrickSource::Memory
+    };
+    if !source.is_file() {
         return Ok(BrickGrid::from_volume_where(volume, brick_size, measure)?);
     }
-    let source = BrickSource::of(volume)?;
     if let Some(z) = source.zarr() {
-        z.set_chunk_budget(chunk_budget);
+        z.set_chunk_budget(budget.map_or(64 << 20, |b| b / 2));
     }
     let mut grid = BrickGrid::unmeasured(volume.dims(), brick_size)?;
     // Id order: neighbouring bricks share chunks, which then stay cached while needed.
