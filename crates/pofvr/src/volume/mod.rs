@@ -9,6 +9,8 @@
 
 mod body;
 pub mod dicom;
+mod dicom_rle;
+mod dicom_scan;
 pub mod dicom_write;
 mod error;
 mod header;

@@ -214,6 +214,35 @@ pub struct ZarrLevel {
     counts: [usize; 3],
     /// Leading axes of length 1 (OME's `t`, `c`).
     lead: usize,
+    /// True when a codec other than `bytes` and `transpose` is listed: the encoded size
+    /// of a chunk then says nothing about its decoded size.
+    compressed: bool,
+    /// True when the one compressor is zstd: each chunk is one zstd frame of the chunk.
+    zstd_only: bool,
+}
+
+/// The decoded size a zstd frame's header claims (`Frame_Content_Size`, RFC 8878 3.1.1.1),
+/// when `data` starts with a zstd frame that states it.
+pub(crate) fn zstd_content_size(data: &[u8]) -> Option<u64> {
+    if data.len() < 5 || data[..4] != [0x28, 0xB5, 0x2F, 0xFD] {
+        return None;
+    }
+    let fhd = data[4];
+    let single = fhd & 0x20 != 0;
+    let fcs_len = match fhd >> 6 {
+        0 if single => 1,
+        0 => return None,
+        1 => 2,
+        2 => 4,
+        _ => 8,
+    };
+    let dict_len = [0, 1, 2, 4][usize::from(fhd & 3)];
+    let at = 5 + usize::from(!single) + dict_len;
+    let field = data.get(at..at + fcs_len)?;
+    let mut v = [0u8; 8];
+    v[..fcs_len].copy_from_slice(field);
+    let n = u64::from_le_bytes(v);
+    Some(if fcs_len == 2 { n + 256 } else { n })
 }
 
 impl std::fmt::Debug for ZarrLevel {
@@ -305,7 +334,19 @@ impl ZarrLevel {
                 "chunk shape {first:?} for an array of shape {shape:?}: chunks must cover the array and hold at most {MAX_CHUNK_BYTES} bytes"
             )));
         }
-        Ok(ZarrLevel {
+        let compressed = meta["codecs"].as_array().is_none_or(|c| {
+            c.iter()
+                .any(|c| !matches!(c["name"].as_str(), Some("bytes" | "transpose")))
+        });
+        let zstd_only = meta["codecs"].as_array().is_some_and(|c| {
+            let names: Vec<_> = c.iter().filter_map(|c| c["name"].as_str()).collect();
+            names.contains(&"zstd")
+                && names
+                    .iter()
+                    .all(|n| matches!(*n, "bytes" | "transpose" | "zstd"))
+                && names.iter().filter(|n| **n == "zstd").count() == 1
+        });
+        let level = ZarrLevel {
             array,
             path: path.to_path_buf(),
             dims,
@@ -313,7 +354,65 @@ impl ZarrLevel {
             chunk,
             counts,
             lead: n - 3,
-        })
+            compressed,
+            zstd_only,
+        };
+        level.check_chunk_files()?;
+        Ok(level)
+    }
+
+    /// Every chunk's file is present and, uncompressed, exactly one chunk long: checked
+    /// before anything is sized by the array's shape (a `zarr.json` claiming a huge array
+    /// over a few chunks fails here, not in an allocation).
+    fn check_chunk_files(&self) -> Result<(), VolumeError> {
+        let bytes = self.chunk_bytes();
+        for kz in 0..self.counts[2] {
+            for ky in 0..self.counts[1] {
+                for kx in 0..self.counts[0] {
+                    let (idx, file) = self.chunk_file([kx, ky, kz]);
+                    let len = match std::fs::metadata(&file) {
+                        Ok(m) if m.is_file() => m.len(),
+                        _ => {
+                            return Err(decode(
+                                &file,
+                                format!("chunk {idx:?} is missing from the store"),
+                            ))
+                        }
+                    };
+                    self.check_encoded_len(&file, len)?;
+                }
+            }
+        }
+        debug_assert!(bytes > 0);
+        Ok(())
+    }
+
+    /// An uncompressed chunk holds exactly its voxels.
+    fn check_encoded_len(&self, file: &Path, len: u64) -> Result<(), VolumeError> {
+        let bytes = self.chunk_bytes() as u64;
+        if !self.compressed && len != bytes {
+            return Err(decode(
+                file,
+                format!(
+                    "an uncompressed chunk of {:?} {} voxels is {bytes} bytes, the file has {len}",
+                    self.chunk, self.dtype
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn chunk_bytes(&self) -> usize {
+        self.chunk.iter().product::<usize>() * self.dtype.size()
+    }
+
+    /// The zarrs indices (leading axes, z, y, x) of chunk `c` and its file.
+    fn chunk_file(&self, c: [usize; 3]) -> (Vec<u64>, std::path::PathBuf) {
+        let mut idx = vec![0u64; self.lead];
+        idx.extend([c[2] as u64, c[1] as u64, c[0] as u64]);
+        let key = self.array.chunk_key(&idx);
+        let file = self.path.join(key.as_str());
+        (idx, file)
     }
 
     /// The array's folder.
@@ -375,16 +474,26 @@ impl ZarrLevel {
 
     /// Chunk `c` as `T` (the array's own type) and its encoded size.
     fn chunk<T: Voxel + ElementOwned>(&self, c: [usize; 3]) -> Result<(Vec<T>, u64), VolumeError> {
-        let mut idx = vec![0u64; self.lead];
-        idx.extend([c[2] as u64, c[1] as u64, c[0] as u64]);
-        let key = self.array.chunk_key(&idx);
-        let file = self.path.join(key.as_str());
+        let (idx, file) = self.chunk_file(c);
         let encoded = self
             .array
             .retrieve_encoded_chunk(&idx)
             .map_err(|e| decode(&file, e))?
             .ok_or_else(|| decode(&file, format!("chunk {idx:?} is missing from the store")))?;
         let bytes = encoded.len() as u64;
+        // The file may have changed since the store was opened.
+        self.check_encoded_len(&file, bytes)?;
+        // zstd sizes its output by the frame's own claim: a damaged one must not decide an
+        // allocation. A chunk decodes to exactly its voxels.
+        if let Some(claim) = zstd_content_size(&encoded) {
+            let want = self.chunk_bytes() as u64;
+            if self.zstd_only && claim != want {
+                return Err(decode(
+                    &file,
+                    format!("the zstd frame claims {claim} bytes, the chunk holds {want}"),
+                ));
+            }
+        }
         let shape = self.array.chunk_shape(&idx).map_err(|e| decode(&file, e))?;
         let decoded = self
             .array
