@@ -237,7 +237,7 @@ fn a_zarr_level_larger_than_the_budget_renders_from_chunks_bit_for_bit() {
         (std::fs::read(dir.path().join(raw)).unwrap(), s)
     };
     // The level is 8.2 MB in 24 chunks of 64³ (512 KB decoded): a 4 MB budget holds four
-    // decoded chunks and 2 MB of bricks, evicting both.
+    // decoded chunks and 2 MB of bricks, so neither fits.
     let (want, _) = render(&["--engine", "bricks"], "a.raw", "a.json");
     for ranks in ["1", "3"] {
         let (got, s) = render(
@@ -252,8 +252,12 @@ fn a_zarr_level_larger_than_the_budget_renders_from_chunks_bit_for_bit() {
             m["zarr_chunks"]["chunk_evictions"].as_u64().unwrap() > 0,
             "{s}"
         );
-        assert!(m["cache"]["evictions"].as_u64().unwrap() > 0, "{s}");
-        assert!(m["cache"]["bytes_read"].as_u64().unwrap() > 0, "{s}");
+        // Bricks that do not fit are evicted or, once the frame's own fill the cache,
+        // read past it.
+        let c = &m["cache"];
+        let evicted = c["evictions"].as_u64().unwrap() + c["not_cached"].as_u64().unwrap();
+        assert!(evicted > 0, "{s}");
+        assert!(c["bytes_read"].as_u64().unwrap() > 0, "{s}");
     }
     // The whole-volume pass cannot run from chunks: a clear error, exit code 2, no image.
     let o = pofvr(

@@ -97,12 +97,7 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
         if a.frame.whole {
             bail!("--whole is the single-process reference renderer; run it without mpirun");
         }
-        let budget = a
-            .memory_budget
-            .as_deref()
-            .map(pofvr::store::parse_size)
-            .transpose()
-            .map_err(|e| anyhow!("--memory-budget: {e}"))?;
+        let budget = render::memory_budget(a.memory_budget.as_deref())?;
         render::run_with(a, ui, &Mpi(DistributedRank::new(&comm), budget))
     })();
     if let Err(e) = result {

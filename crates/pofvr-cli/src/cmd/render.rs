@@ -138,12 +138,6 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     let max_dim = resolve::size(&a.view.size)
         .ok()
         .map(|(w, h)| 2 * w.max(h) as usize);
-    let budget = a
-        .memory_budget
-        .as_deref()
-        .map(pofvr::store::parse_size)
-        .transpose()
-        .map_err(|e| anyhow!("--memory-budget: {e}"))?;
     // A Zarr level larger than the budget is not decoded: the store decodes its chunks.
     let vol = resolve::volume_deferring(&a.volume, max_dim, budget)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
