@@ -32,7 +32,9 @@
 //! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). An invalid, unknown or
 //! repeated parameter is answered `400` with a plain-text message. While the POFs are
 //! `stale` the POF modes render as `verified` ([`tf_api::cull_for`]), and the stats header
-//! says so: `cull` as rendered, `cull_requested`, `pofs`, and `family_version`. Unless
+//! says so: `cull` as rendered, `cull_requested`, `pofs`, and `family_version`; under a
+//! memory budget its `bytes_read`, `bricks_read` and `cache_hits` say what the frame read
+//! from the brick store. Unless
 //! [`ViewerOptions::loopback_hosts_only`] is off, a `Host` other than a loopback name gets
 //! `403`.
 //!
@@ -509,6 +511,11 @@ struct FrameReport<'a> {
     bricks: frame_adapter::BrickCounts,
     ranks: usize,
     times: Times,
+    /// What the frame read from a memory-budgeted store (`pofvr serve --memory-budget`):
+    /// bytes and bricks read from the file, bricks found in the cache; zeros otherwise.
+    bytes_read: u64,
+    bricks_read: u64,
+    cache_hits: u64,
 }
 
 async fn frame(
@@ -610,6 +617,9 @@ async fn frame(
             wait_ms,
             server_ms: received.elapsed().as_secs_f64() * 1e3,
         },
+        bytes_read: stats.bytes_read,
+        bricks_read: stats.bricks_read,
+        cache_hits: stats.cache_hits,
     };
     let mut headers = HeaderMap::new();
     headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));

@@ -94,6 +94,16 @@ pub(crate) struct ExperimentArgs {
     /// > default: 1
     #[arg(long, default_value_t = 1)]
     pub(crate) seed: u64,
+    /// At most this much memory for the volume's voxels (e.g. 256M, 4G), as `render
+    /// --memory-budget`: a volume larger than that has its bricks' value ranges measured by
+    /// streaming the file, and every brick-engine frame of the figures reads the bricks it
+    /// renders on demand into one LRU cache within the budget. The POF build, the
+    /// reference images and the exact and ideal culls still read the whole volume (through
+    /// its mapping). `report.json` gains a `memory_budget` entry (bytes and bricks read,
+    /// cache hits, cache peak, peak RSS). The figures' numbers are the same.
+    /// > default: none (the whole volume is mapped)
+    #[arg(long, value_name = "SIZE")]
+    pub(crate) memory_budget: Option<String>,
 }
 
 /// Resolved settings of a run (`plan` in `report.json`).
@@ -265,12 +275,16 @@ const NO_SETS: &str = "not measured: POF sets were not built (they are skipped w
 pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     let t_start = Instant::now();
     let plan = Plan::of(a)?;
+    let budget = super::render::memory_budget(a.memory_budget.as_deref())?;
     let (width, height, thr) = (plan.width, plan.height, plan.cull_threshold);
     let mach = machine();
     let sp = ui.spinner("opening and bricking the volume");
     let vol = resolve::volume(&a.volume)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
-    let mut job = RenderJob::new(vol, tf, a.volume.brick, RenderSettings::default())?;
+    let grid = pofvr::store::grid_for(&vol, a.volume.brick, budget)?;
+    let store = pofvr::store::cache_for(&vol, budget)?;
+    let mut job = RenderJob::with_grid(vol, tf, grid, RenderSettings::default())?;
+    job.store = store;
     sp.finish_and_clear();
     let mut out = ReportDir::create(&a.out)?;
     let bars = Bars::new(ui);
@@ -408,7 +422,7 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
     );
     out.record("index.html");
     out.record("report.json");
-    let report = json!({
+    let mut report = json!({
         "volume": a.volume.volume,
         "dims": dims,
         "data_type": job.volume.data_type().to_string(),
@@ -423,6 +437,12 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         "files": out.files(),
         "seconds": t_start.elapsed().as_secs_f64(),
     });
+    if let (Some(b), Some(m)) = (budget, report.as_object_mut()) {
+        m.insert(
+            "memory_budget".into(),
+            super::render::budget_json(&job.volume, job.store.as_deref(), b)?,
+        );
+    }
     out.write("index.html", html.as_bytes())?;
     out.json("report.json", &report)?;
 
@@ -444,6 +464,19 @@ pub(crate) fn run(a: &ExperimentArgs, ui: &Ui) -> Result<()> {
         eprintln!(
             "  best speedup {:.2}x at {} ranks ({})",
             b.speedup, b.ranks, b.best
+        );
+    }
+    if let Some(store) = job.store.as_deref() {
+        let c = store.summary();
+        eprintln!(
+            "  memory budget {:.1} MB: {} bricks ({:.1} MB) read on demand from the {}, {} cache hits, cache peak {:.1} MB, peak RSS {:.1} MB",
+            c.budget_bytes as f64 / 1e6,
+            c.bricks_read,
+            c.bytes_read as f64 / 1e6,
+            store.source().kind(),
+            c.cache_hits,
+            c.cache_peak_bytes as f64 / 1e6,
+            pofvr::store::peak_rss_bytes() as f64 / 1e6
         );
     }
     let violations = audit.conservative_violations;

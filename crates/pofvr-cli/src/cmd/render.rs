@@ -131,13 +131,15 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     if a.frames > 1 && a.reference.is_some() {
         bail!("--reference compares one frame; leave out --frames");
     }
+    let budget = memory_budget(a.memory_budget.as_deref())?;
     let sp = ui.spinner("opening and bricking the volume");
     // A multiscale image is read at the finest level that still has about two voxels per
     // pixel across the image: finer levels only add samples the pixels average away.
     let max_dim = resolve::size(&a.view.size)
         .ok()
         .map(|(w, h)| 2 * w.max(h) as usize);
-    let vol = resolve::volume_for(&a.volume, max_dim)?;
+    // A Zarr level larger than the budget is not decoded: the store decodes its chunks.
+    let vol = resolve::volume_deferring(&a.volume, max_dim, budget)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
     let cam = resolve::camera(&a.view, &vol)?;
     let curve: Curve = a
@@ -145,12 +147,6 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         .curve
         .parse()
         .map_err(|e| anyhow::anyhow!("--curve: {e}"))?;
-    let budget = a
-        .memory_budget
-        .as_deref()
-        .map(pofvr::store::parse_size)
-        .transpose()
-        .map_err(|e| anyhow!("--memory-budget: {e}"))?;
     // An MPI rank measures only its own bricks (the backend's grid) and keeps copies of
     // them; one process under a budget streams the file once instead.
     let grid = match budget {
@@ -234,7 +230,10 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     }
     let mut extra = backend.finish()?;
     if let (Some(b), Some(m)) = (budget, extra.as_mut()) {
-        m.insert("memory_budget".into(), budget_json(&scene, b)?);
+        m.insert(
+            "memory_budget".into(),
+            budget_json(scene.volume(), scene.store(), b)?,
+        );
     }
     sp.finish_and_clear();
     if !backend.is_root() {
@@ -280,21 +279,20 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         }
     }
     if let Some(store) = scene.store() {
-        let per: Vec<String> = all
-            .iter()
-            .map(|s| format!("{:.1}", s.bytes_read as f64 / 1e6))
-            .collect();
-        let c = store.summary();
-        eprintln!(
-            "memory budget {} MB: bricks read on demand from the {}, MB read per frame [{}], {} bricks read, {} cache hits, cache peak {:.1} MB, peak RSS {:.1} MB",
-            c.budget_bytes / 1_000_000,
-            store.source().kind(),
-            per.join(", "),
-            c.bricks_read,
-            c.cache_hits,
-            c.cache_peak_bytes as f64 / 1e6,
-            pofvr::store::peak_rss_bytes() as f64 / 1e6
-        );
+        let per: Vec<u64> = all.iter().map(|s| s.bytes_read).collect();
+        eprintln!("{}", budget_line(store, &per));
+        if let [first, rest @ ..] = per.as_slice() {
+            if !rest.is_empty() {
+                let mut r = rest.to_vec();
+                r.sort_unstable();
+                eprintln!(
+                    "bytes read: first frame {:.1} MB, median of the rest {:.1} MB, most {:.1} MB",
+                    *first as f64 / 1e6,
+                    r[r.len() / 2] as f64 / 1e6,
+                    r[r.len() - 1] as f64 / 1e6
+                );
+            }
+        }
     }
     if all.len() > 1 {
         let ms: Vec<f64> = all.iter().map(|s| s.frame_ms).collect();
@@ -307,6 +305,34 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         );
     }
     Ok(())
+}
+
+/// The bytes of `--memory-budget SIZE`, as `render`, `serve` and `experiment` read it: one
+/// parser and one message for all of them.
+pub(crate) fn memory_budget(flag: Option<&str>) -> Result<Option<u64>> {
+    flag.map(pofvr::store::parse_size)
+        .transpose()
+        .map_err(|e| anyhow!("--memory-budget: {e}"))
+}
+
+/// One line on what a budgeted scene read: the budget, where bricks come from, per-frame
+/// MB read (`per_frame`, in frame order), the cache's totals and the peak RSS.
+pub(crate) fn budget_line(store: &pofvr::store::BrickCache, per_frame: &[u64]) -> String {
+    let per: Vec<String> = per_frame
+        .iter()
+        .map(|b| format!("{:.1}", *b as f64 / 1e6))
+        .collect();
+    let c = store.summary();
+    format!(
+        "memory budget {} MB: bricks read on demand from the {}, MB read per frame [{}], {} bricks read, {} cache hits, cache peak {:.1} MB, peak RSS {:.1} MB",
+        c.budget_bytes / 1_000_000,
+        store.source().kind(),
+        per.join(", "),
+        c.bricks_read,
+        c.cache_hits,
+        c.cache_peak_bytes as f64 / 1e6,
+        pofvr::store::peak_rss_bytes() as f64 / 1e6
+    )
 }
 
 /// `scene` with the POF file `p` (and `--pof-level`s). A frame that verifies its cull
@@ -365,14 +391,19 @@ pub(crate) fn verified_cull<'s>(
         .ok_or_else(|| no_pofs(format!("--cull {}", m.name())))
 }
 
-/// The `memory_budget` entry of `--stats`: the budget, where bricks come from, why the
-/// engine is the brick engine, and the cache's totals over the run.
-fn budget_json(scene: &Scene, budget: u64) -> Result<serde_json::Value> {
-    let volume_bytes = pofvr::store::volume_bytes(scene.volume());
+/// The `memory_budget` entry of `--stats` (and of `experiment`'s `report.json`): the
+/// budget, where bricks come from, why the engine is the brick engine, and the cache's
+/// totals over the run.
+pub(crate) fn budget_json(
+    volume: &Volume,
+    store: Option<&pofvr::store::BrickCache>,
+    budget: u64,
+) -> Result<serde_json::Value> {
+    let volume_bytes = pofvr::store::volume_bytes(volume);
     let mut m = serde_json::Map::new();
     m.insert("budget_bytes".into(), budget.into());
     m.insert("volume_bytes".into(), volume_bytes.into());
-    match scene.store() {
+    match store {
         Some(store) => {
             m.insert("source".into(), store.source().kind().into());
             m.insert(
@@ -381,6 +412,17 @@ fn budget_json(scene: &Scene, budget: u64) -> Result<serde_json::Value> {
                     .into(),
             );
             m.insert("cache".into(), serde_json::to_value(store.summary())?);
+            if let Some(z) = store.source().zarr() {
+                m.insert(
+                    "zarr_chunks".into(),
+                    serde_json::json!({
+                        "chunk_budget_bytes": z.chunk_budget(),
+                        "chunk_shape": z.level().chunk_shape(),
+                        "chunks_decoded": z.chunks_decoded(),
+                        "chunk_evictions": z.chunk_evictions(),
+                    }),
+                );
+            }
         }
         None => {
             m.insert(
@@ -481,7 +523,8 @@ fn median(v: &[f64]) -> f64 {
 
 /// One frame: its statistics (plus the backend's fields). A sequence: `frames` (one entry
 /// per frame), `frame_ms` (per-frame times), `first_frame_ms`, `median_frame_ms` (of the
-/// frames after the first), `bytes_sent` (per frame, all ranks), plus the backend's fields.
+/// frames after the first), `bytes_sent` (per frame, all ranks), `bytes_read` (per frame,
+/// from a budgeted store) and `median_bytes_read_after_first`, plus the backend's fields.
 fn stats_json(
     all: &[FrameStats],
     extra: Option<serde_json::Map<String, serde_json::Value>>,
@@ -507,6 +550,16 @@ fn stats_json(
         );
         m.insert("frame_ms".into(), serde_json::to_value(&ms)?);
         m.insert("bytes_sent".into(), serde_json::to_value(&bytes)?);
+        // What each frame read from a budgeted store: after the first, only the bricks
+        // that came into view or fell out of the cache.
+        let read: Vec<u64> = all.iter().map(|s| s.bytes_read).collect();
+        let mut rest = read[1.min(read.len())..].to_vec();
+        rest.sort_unstable();
+        m.insert("bytes_read".into(), serde_json::to_value(&read)?);
+        m.insert(
+            "median_bytes_read_after_first".into(),
+            rest.get(rest.len() / 2).copied().into(),
+        );
         m
     };
     if let Some(extra) = extra {

@@ -38,17 +38,45 @@ pub(crate) struct ServeArgs {
     /// > default: 1
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
     pub(crate) ranks: u16,
+    /// At most this much memory for the volume's voxels (e.g. 256M, 4G), as `render
+    /// --memory-budget`: a volume larger than that is rendered by the brick engine, each
+    /// brick a frame renders read on demand into an LRU cache within the budget, shared by
+    /// every client's frames; the histogram is counted by streaming the file. The frames'
+    /// stats header gains bytes_read, bricks_read and cache_hits.
+    /// > default: none (the whole volume is mapped)
+    #[arg(long, value_name = "SIZE")]
+    pub(crate) memory_budget: Option<String>,
 }
 
 pub(crate) fn run(a: &ServeArgs, ui: &Ui) -> Result<()> {
+    let budget = super::render::memory_budget(a.memory_budget.as_deref())?;
     let sp = ui.spinner("opening and bricking the volume");
     let vol = resolve::volume(&a.volume)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
-    let mut scene = Scene::builder(vol, tf).brick_size(a.volume.brick).build()?;
+    let mut scene = Scene::builder(vol, tf)
+        .brick_size(a.volume.brick)
+        .memory_budget(budget)
+        .build()?;
     if let Some(p) = &a.pof {
         scene = scene.load_pof_levels(p, &a.pof_level)?;
     }
     sp.finish_and_clear();
+    if let Some(b) = budget {
+        let bytes = pofvr::store::volume_bytes(scene.volume());
+        match scene.store() {
+            Some(store) => eprintln!(
+                "pofvr serve: the volume ({:.1} MB) does not fit the memory budget ({:.1} MB): the brick engine reads bricks on demand from the {}",
+                bytes as f64 / 1e6,
+                b as f64 / 1e6,
+                store.source().kind()
+            ),
+            None => eprintln!(
+                "pofvr serve: the volume ({:.1} MB) fits the memory budget ({:.1} MB): rendered whole",
+                bytes as f64 / 1e6,
+                b as f64 / 1e6
+            ),
+        }
+    }
     if !a.bind.is_loopback() {
         eprintln!(
             "pofvr serve: warning: listening on {}, reachable from other machines",

@@ -61,18 +61,32 @@ pub const PREDICT_STRIDE: u32 = 2;
 /// Weights and the effective extinction of every cell at them.
 type Cached = (Vec<f32>, Arc<Vec<f32>>);
 
+/// A cell's slot when every basis is transparent over its voxels (air, or tissue outside
+/// the family): it has no groups stored, every group's extinction is zero.
+const NO_SLOT: u32 = u32::MAX;
+
 /// The proxy of a volume for one family: per basis, per cell and value group, the mean
 /// extinction, and each group's share of the cell's voxels. It depends on the bases, not on
 /// the weights, so a job builds it once.
+///
+/// Why sparse: a dense table holds `4 × (bases + 1)` floats per 4³ cell, 37 % of an i16
+/// volume's bytes for two bases, which alone broke a 256 MB memory budget on a
+/// 512×512×1728 CT. Most cells of a CT are transparent for any family (air), so only the
+/// others keep their groups; the shares are not stored at all, since a cell's group shares
+/// follow from its voxel count, which follows from where it is.
 #[derive(Clone, Debug)]
 pub struct Proxy {
+    /// Voxels per axis.
+    dims: [usize; 3],
     /// Cells per axis.
     cells: [usize; 3],
-    /// Per basis, the mean extinction per unit length of each cell's groups
-    /// ([`PROXY_GROUPS`] per cell, lowest values first; cells x fastest).
+    /// Per cell (x fastest), the index of its groups in `tau`, or [`NO_SLOT`].
+    slot: Vec<u32>,
+    /// Per basis, the mean extinction per unit length of the value groups of the cells with
+    /// a slot ([`PROXY_GROUPS`] per slot, lowest values first).
     tau: Vec<Vec<f32>>,
-    /// Each cell's groups' shares of its voxels (they sum to 1).
-    share: Vec<f32>,
+    /// Cells with a slot so far.
+    stored: usize,
     /// The effective extinction of the last weights asked for: every rank of a job and
     /// every frame at the same weights shares it (shared by clones, keyed by the weights).
     cache: Arc<Mutex<Option<Cached>>>,
@@ -85,27 +99,80 @@ impl Proxy {
     pub fn new(volume: &Volume, sampled: &SampledTf) -> Self {
         let dims = volume.dims();
         let cells = dims.map(|n| n.div_ceil(PROXY_CELL));
-        let [cx, cy, cz] = cells;
-        let bases = sampled.basis_count();
-        let n = cx * cy * cz * PROXY_GROUPS;
-        // Per slab of cells along z: per basis the slab's groups, and their shares.
         let slabs: Vec<Slab> = with_voxels!(volume.data(), v => {
-            (0..cz).into_par_iter().map(|z| slab(v, dims, cells, z, sampled)).collect()
+            (0..cells[2]).into_par_iter().map(|z| slab(v, dims, cells, z, sampled)).collect()
         });
-        let mut tau = vec![Vec::with_capacity(n); bases];
-        let mut share = Vec::with_capacity(n);
+        let mut proxy = Proxy::empty(dims, sampled.basis_count());
         for s in slabs {
-            for (t, b) in tau.iter_mut().zip(s.tau) {
-                t.extend(b);
-            }
-            share.extend(s.share);
+            proxy.append(s);
         }
+        proxy.finish()
+    }
+
+    /// A proxy of no cells yet, filled slab by slab with [`Proxy::append`].
+    fn empty(dims: [usize; 3], bases: usize) -> Self {
+        let cells = dims.map(|n| n.div_ceil(PROXY_CELL));
         Proxy {
+            dims,
             cells,
-            tau,
-            share,
+            slot: Vec::with_capacity(cells.iter().product()),
+            tau: vec![Vec::new(); bases],
+            stored: 0,
             cache: Arc::default(),
         }
+    }
+
+    /// Adds the next slab of cells along z.
+    fn append(&mut self, s: Slab) {
+        let base = self.stored;
+        self.stored += s.stored;
+        // Past 2³² − 1 stored cells (a volume of 2⁴⁰ voxels) a cell is taken as transparent:
+        // the proxy only predicts, and verification repairs what it gets wrong.
+        self.slot.extend(s.slot.iter().map(|&l| {
+            if l == NO_SLOT {
+                NO_SLOT
+            } else {
+                u32::try_from(base + l as usize).unwrap_or(NO_SLOT)
+            }
+        }));
+        for (t, b) in self.tau.iter_mut().zip(s.tau) {
+            t.extend(b);
+        }
+    }
+
+    /// Gives back the spare capacity of the growing tables.
+    fn finish(mut self) -> Self {
+        for t in &mut self.tau {
+            t.shrink_to_fit();
+        }
+        self
+    }
+
+    /// Heap bytes of the proxy's tables (not counting the cached extinction, one `f32` per
+    /// cell): what it costs a memory budget.
+    #[must_use]
+    pub fn heap_bytes(&self) -> u64 {
+        let f = std::mem::size_of::<f32>();
+        let tau: usize = self.tau.iter().map(|t| t.capacity() * f).sum();
+        (self.slot.capacity() * std::mem::size_of::<u32>() + tau) as u64
+    }
+
+    /// The share of cell `c`'s voxels in each of its groups: the sizes of the group split
+    /// of [`slab`] over the voxel count of a cell at its place (edge cells are cut short).
+    fn shares(&self, c: usize) -> [f32; PROXY_GROUPS] {
+        let [cx, cy, _] = self.cells;
+        let at = [c % cx, (c / cx) % cy, c / (cx * cy)];
+        let n: usize = (0..3)
+            .map(|a| ((at[a] + 1) * PROXY_CELL).min(self.dims[a]) - at[a] * PROXY_CELL)
+            .product();
+        std::array::from_fn(|g| {
+            let len = (g + 1) * n / PROXY_GROUPS - g * n / PROXY_GROUPS;
+            if len == 0 {
+                0.0
+            } else {
+                len as f32 / n as f32
+            }
+        })
     }
 
     /// As [`Proxy::new`] (the same proxy), for a volume of `dims` voxels read slab by slab
@@ -121,34 +188,24 @@ impl Proxy {
         slab_planes: usize,
         read: &dyn Fn(usize, usize) -> Result<crate::volume::VoxelData, E>,
     ) -> Result<Self, E> {
-        let cells = dims.map(|n| n.div_ceil(PROXY_CELL));
-        let [cx, cy, cz] = cells;
+        let mut proxy = Proxy::empty(dims, sampled.basis_count());
+        let cz = proxy.cells[2];
         let per_read = (slab_planes / PROXY_CELL).max(1);
-        let n = cx * cy * cz * PROXY_GROUPS;
-        let mut tau = vec![Vec::with_capacity(n); sampled.basis_count()];
-        let mut share = Vec::with_capacity(n);
         for first in (0..cz).step_by(per_read) {
             let layers = per_read.min(cz - first);
             let z0 = first * PROXY_CELL;
             let planes = (layers * PROXY_CELL).min(dims[2] - z0);
             let data = read(z0, planes)?;
             let sdims = [dims[0], dims[1], planes];
+            let cells = proxy.cells;
             let slabs: Vec<Slab> = with_voxels!(&data, v => {
                 (0..layers).into_par_iter().map(|z| slab(v, sdims, cells, z, sampled)).collect()
             });
             for s in slabs {
-                for (t, b) in tau.iter_mut().zip(s.tau) {
-                    t.extend(b);
-                }
-                share.extend(s.share);
+                proxy.append(s);
             }
         }
-        Ok(Proxy {
-            cells,
-            tau,
-            share,
-            cache: Arc::default(),
-        })
+        Ok(proxy.finish())
     }
 
     /// Cells per axis.
@@ -188,15 +245,19 @@ impl Proxy {
             .into_par_iter()
             .with_min_len(4096)
             .map(|c| {
+                let slot = self.slot[c];
                 let group = |g: usize| -> f32 {
+                    if slot == NO_SLOT {
+                        return 0.0;
+                    }
                     self.tau
                         .iter()
                         .zip(weights)
                         .filter(|(_, k)| **k > 0.0)
-                        .map(|(t, k)| k * t[c * PROXY_GROUPS + g])
+                        .map(|(t, k)| k * t[slot as usize * PROXY_GROUPS + g])
                         .sum()
                 };
-                let shares = &self.share[c * PROXY_GROUPS..][..PROXY_GROUPS];
+                let shares = self.shares(c);
                 let transmit: f32 = (0..PROXY_GROUPS)
                     .map(|g| shares[g] * (-group(g) * l).exp())
                     .sum();
@@ -382,15 +443,18 @@ impl Proxy {
 // A cell's bins are sorted as u16.
 const _: () = assert!(TF_BINS <= 1 << 16);
 
-/// One slab of cells: per basis the mean extinction of each cell's value groups, and the
-/// groups' shares.
+/// One slab of cells: per cell its slot among the slab's stored cells (or [`NO_SLOT`]),
+/// and per basis the mean extinction of each stored cell's value groups.
 struct Slab {
+    slot: Vec<u32>,
     tau: Vec<Vec<f32>>,
-    share: Vec<f32>,
+    /// Cells stored.
+    stored: usize,
 }
 
 /// One slab of cells (cell row `z`): each cell's voxels sorted by bin and split into
-/// [`PROXY_GROUPS`] near-equal shares, each group's mean extinction per basis.
+/// [`PROXY_GROUPS`] near-equal shares, each group's mean extinction per basis; a cell
+/// where every basis is transparent is not stored.
 fn slab<T: Voxel>(
     v: &[T],
     [nx, ny, nz]: [usize; 3],
@@ -400,8 +464,9 @@ fn slab<T: Voxel>(
 ) -> Slab {
     let bases = sampled.basis_count();
     let tables: Vec<&[f32]> = (0..bases).map(|b| sampled.tau_table(b)).collect();
-    let mut tau = vec![vec![0f32; cx * cy * PROXY_GROUPS]; bases];
-    let mut share = vec![0f32; cx * cy * PROXY_GROUPS];
+    let mut tau = vec![Vec::new(); bases];
+    let mut slot = Vec::with_capacity(cx * cy);
+    let mut stored = 0usize;
     let zs = z * PROXY_CELL..((z + 1) * PROXY_CELL).min(nz);
     // Bins where some basis is not transparent: a cell with none (air, or tissue outside
     // the family) has every group at zero and needs no sort. Most cells of a CT are such.
@@ -425,26 +490,28 @@ fn slab<T: Voxel>(
                     }));
                 }
             }
-            let c = (ycell * cx + xcell) * PROXY_GROUPS;
-            let n = bins.len();
-            if any {
-                bins.sort_unstable();
+            if !any {
+                slot.push(NO_SLOT);
+                continue;
             }
+            // A slab of more than 2³² − 1 cells (a plane of 2³⁶ voxels) keeps the rest
+            // transparent, as [`Proxy::append`] does.
+            slot.push(u32::try_from(stored).unwrap_or(NO_SLOT));
+            stored += 1;
+            let n = bins.len();
+            bins.sort_unstable();
             for g in 0..PROXY_GROUPS {
                 let part = &bins[g * n / PROXY_GROUPS..(g + 1) * n / PROXY_GROUPS];
-                if part.is_empty() {
-                    continue;
-                }
-                share[c + g] = part.len() as f32 / n as f32;
-                if !any {
-                    continue;
-                }
                 for (t, table) in tau.iter_mut().zip(&tables) {
+                    if part.is_empty() {
+                        t.push(0.0);
+                        continue;
+                    }
                     let sum: f64 = part.iter().map(|b| f64::from(table[usize::from(*b)])).sum();
-                    t[c + g] = (sum / part.len() as f64) as f32;
+                    t.push((sum / part.len() as f64) as f32);
                 }
             }
         }
     }
-    Slab { tau, share }
+    Slab { slot, tau, stored }
 }

@@ -115,25 +115,58 @@ fn the_cache_keeps_its_budget_evicting_the_least_recently_used() {
         .unwrap();
     // Room for two interior bricks.
     let cache = BrickCache::new(BrickSource::Memory, 2 * one);
-    let counts = ReadCounts::default();
-    let get = |i: u32| cache.get(&vol, &grid, BrickId(i), &counts).unwrap();
-    let a = get(0);
+    let (first, second) = (ReadCounts::default(), ReadCounts::default());
+    let get = |i: u32, c: &ReadCounts| cache.get(&vol, &grid, BrickId(i), c).unwrap();
+    let a = get(0, &first);
     assert_eq!(
         values(a.data()),
         values(BrickCopy::new(&vol, &grid, BrickId(0)).data())
     );
-    get(1);
-    get(0); // hit: 1 is now the oldest
-    get(2); // evicts 1
-    get(0); // still held
-    get(1); // read again
-    assert_eq!(counts.cache_hits(), 2);
-    assert_eq!(counts.bricks_read(), 4);
+    get(1, &first);
+    get(0, &second); // hit: 1 is now the oldest
+    get(2, &second); // evicts 1, last used by the first frame
+    get(0, &second); // still held
+    get(1, &second); // read again, not cached: 0 and 2 are the second frame's
+    get(2, &second); // still held
+    assert_eq!((first.cache_hits(), first.bricks_read()), (0, 2));
+    assert_eq!((second.cache_hits(), second.bricks_read()), (3, 2));
     let s = cache.summary();
     assert!(s.cache_peak_bytes <= 2 * one, "{s:?}");
-    assert_eq!(s.evictions, 2);
+    assert_eq!((s.evictions, s.not_cached), (1, 1), "{s:?}");
     assert_eq!(s.bricks_read, 4);
-    assert_eq!(counts.bytes_read(), s.bytes_read);
+    assert_eq!(first.bytes_read() + second.bytes_read(), s.bytes_read);
+}
+
+#[test]
+fn frames_that_need_more_than_the_budget_find_a_budgets_worth_of_bricks_next_time() {
+    let vol = head_i16();
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let ids: Vec<BrickId> = (0..grid.len() as u32).map(BrickId).collect();
+    let bytes =
+        |id: &BrickId| BrickCopy::apron_box(&grid, *id).1.iter().product::<usize>() as u64 * 2;
+    let all: u64 = ids.iter().map(bytes).sum();
+    let cache = BrickCache::new(BrickSource::Memory, all / 2);
+    // The same bricks in the same order every frame, as a still or slowly turning view.
+    let frame = || {
+        let c = ReadCounts::default();
+        for id in &ids {
+            cache.get(&vol, &grid, *id, &c).unwrap();
+        }
+        c
+    };
+    let one = frame();
+    assert_eq!(one.bytes_read(), all);
+    for _ in 0..3 {
+        let next = frame();
+        // Plain LRU would evict each brick just before it is asked for: no hit at all.
+        assert!(
+            next.bytes_read() <= all - all / 2 + all / 8,
+            "{} of {all}",
+            next.bytes_read()
+        );
+        assert!(next.cache_hits() > 0);
+    }
+    assert!(cache.summary().cache_peak_bytes <= all / 2);
 }
 
 fn camera(v: &Volume, az: f64, size: u32) -> Camera {
@@ -334,4 +367,90 @@ fn the_streamed_proxy_is_the_mapped_proxy() {
             "{planes} planes"
         );
     }
+}
+
+/// The proxy's effective extinction of every cell, computed densely and directly from the
+/// definition (cell voxels sorted by bin, four near-equal groups, each group's mean
+/// extinction per basis, shares from the groups' sizes): what the sparse proxy must equal.
+/// Also the number of cells where some basis is not transparent.
+fn dense_extinction(
+    vol: &Volume,
+    sampled: &crate::render::SampledTf,
+    w: &[f32],
+) -> (Vec<f32>, usize) {
+    use crate::cull::proxy::{CORRELATION_LENGTH as L, PROXY_CELL as C, PROXY_GROUPS as G};
+    let d = vol.dims();
+    let cells = d.map(|n| n.div_ceil(C));
+    let v = values(vol.data());
+    let mut out = Vec::new();
+    let mut seen = 0;
+    for z in 0..cells[2] {
+        for y in 0..cells[1] {
+            for x in 0..cells[0] {
+                let mut bins = Vec::new();
+                for zz in z * C..((z + 1) * C).min(d[2]) {
+                    for yy in y * C..((y + 1) * C).min(d[1]) {
+                        for xx in x * C..((x + 1) * C).min(d[0]) {
+                            bins.push(sampled.bin(v[xx + d[0] * (yy + d[1] * zz)]));
+                        }
+                    }
+                }
+                bins.sort_unstable();
+                let opaque =
+                    |i: &usize| (0..sampled.basis_count()).any(|b| sampled.tau_table(b)[*i] > 0.0);
+                seen += usize::from(bins.iter().any(opaque));
+                let n = bins.len();
+                let transmit: f32 = (0..G)
+                    .map(|g| {
+                        let part = &bins[g * n / G..(g + 1) * n / G];
+                        if part.is_empty() {
+                            return 0.0;
+                        }
+                        let e: f32 = (0..sampled.basis_count())
+                            .zip(w)
+                            .filter(|(_, k)| **k > 0.0)
+                            .map(|(b, k)| {
+                                let t = sampled.tau_table(b);
+                                let s: f64 = part.iter().map(|&i| f64::from(t[i])).sum();
+                                k * (s / part.len() as f64) as f32
+                            })
+                            .sum();
+                        part.len() as f32 / n as f32 * (-e * L).exp()
+                    })
+                    .sum();
+                out.push(-transmit.max(f32::MIN_POSITIVE).ln() / L);
+            }
+        }
+    }
+    (out, seen)
+}
+
+#[test]
+fn the_proxy_stores_only_cells_some_basis_sees_and_equals_the_dense_definition() {
+    use crate::cull::proxy::{Proxy, PROXY_CELL, PROXY_GROUPS};
+    // Odd dimensions: the cells on every high face are cut short, so their shares differ.
+    let vol = Phantom::Body.generate_dims([45, 38, 29]);
+    let tf = families::for_phantom(Phantom::Body);
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let sampled = crate::render::SampledTf::new(&tf, grid.value_range());
+    let proxy = Proxy::new(&vol, &sampled);
+    for w in [[1.0, 1.0], [0.0, 2.5], [0.3, 0.0]] {
+        assert_eq!(
+            proxy.extinction(&w),
+            dense_extinction(&vol, &sampled, &w).0,
+            "{w:?}"
+        );
+    }
+    // Cells where either basis is opaque somewhere: the only ones with stored groups.
+    let cells: usize = vol.dims().map(|n| n.div_ceil(PROXY_CELL)).iter().product();
+    let seen = dense_extinction(&vol, &sampled, &[1.0, 1.0]).1;
+    assert!(seen > 0 && seen < cells, "{seen} of {cells} cells seen");
+    let f = std::mem::size_of::<f32>() as u64;
+    let dense = cells as u64 * PROXY_GROUPS as u64 * f * 3;
+    let sparse = cells as u64 * f + (seen * PROXY_GROUPS * 2) as u64 * f;
+    assert!(
+        proxy.heap_bytes() <= sparse && proxy.heap_bytes() < dense,
+        "{} heap bytes; {sparse} sparse, {dense} dense",
+        proxy.heap_bytes()
+    );
 }
