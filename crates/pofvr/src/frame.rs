@@ -314,18 +314,7 @@ impl RenderJob {
                 .read_box(&self.volume, [0, 0, z0], [d[0], d[1], n])
         };
         let p = Proxy::from_slabs(d, &self.sampled, planes, &read)?;
-        // The proxy lives beside the cache for the rest of the run: charged to the budget,
-        // so that the two stay within it (ranks racing here charge the one kept, once).
-        let bytes = p.resident_bytes();
-        let mut kept = false;
-        let p = self.proxy.get_or_init(|| {
-            kept = true;
-            p
-        });
-        if kept {
-            store.charge(bytes);
-        }
-        Ok(p)
+        Ok(self.proxy.get_or_init(|| p))
     }
 
     /// Forgets the bricks the last verified frame needed, so that the next

@@ -157,13 +157,6 @@ impl Proxy {
         (self.slot.capacity() * std::mem::size_of::<u32>() + tau) as u64
     }
 
-    /// [`Proxy::heap_bytes`] plus the cached extinction of one weighting (an `f32` per
-    /// cell): what the proxy holds while frames use it.
-    #[must_use]
-    pub fn resident_bytes(&self) -> u64 {
-        self.heap_bytes() + (self.slot.len() * std::mem::size_of::<f32>()) as u64
-    }
-
     /// The share of cell `c`'s voxels in each of its groups: the sizes of the group split
     /// of [`slab`] over the voxel count of a cell at its place (edge cells are cut short).
     fn shares(&self, c: usize) -> [f32; PROXY_GROUPS] {

@@ -81,29 +81,28 @@ impl Lru {
         Some(Arc::clone(copy))
     }
 
-    /// Caches `copy` within `room` bytes, evicting the least recently used bricks last used
-    /// before `start` (the reading frame's start) to make room; when the oldest left is the
-    /// frame's own, or the copy alone exceeds the room, the copy is passed on uncached.
-    fn insert(&mut self, id: BrickId, copy: &Arc<BrickCopy>, room: u64, start: u64) {
+    /// Caches `copy`, evicting the least recently used bricks last used before `start` (the
+    /// reading frame's start) to make room; when the oldest left is the frame's own, the
+    /// copy is passed on uncached instead.
+    fn insert(&mut self, id: BrickId, copy: &Arc<BrickCopy>, budget: u64, start: u64) {
         let size = copy.bytes() as u64;
-        // What may stay: with the copy, or (it does not fit at all) without it, so that a
-        // budget cut by a charge still sheds older frames' bricks.
-        let keep = room.checked_sub(size).unwrap_or(room);
-        while self.bytes > keep {
-            match self.order.first_key_value() {
-                Some((&used, &old)) if used <= start => {
-                    self.order.pop_first();
-                    if let Some((c, _)) = self.held.remove(&old) {
-                        self.bytes -= c.bytes() as u64;
-                        self.evictions += 1;
-                    }
-                }
-                _ => break,
-            }
-        }
-        if size > room || self.bytes + size > room {
+        if size > budget {
             self.passed += 1;
             return;
+        }
+        while self.bytes + size > budget {
+            let Some((&used, &old)) = self.order.first_key_value() else {
+                break;
+            };
+            if used > start {
+                self.passed += 1;
+                return;
+            }
+            self.order.pop_first();
+            if let Some((c, _)) = self.held.remove(&old) {
+                self.bytes -= c.bytes() as u64;
+                self.evictions += 1;
+            }
         }
         self.clock += 1;
         self.held.insert(id, (Arc::clone(copy), self.clock));
@@ -122,9 +121,6 @@ impl Lru {
 pub struct BrickCache {
     source: BrickSource,
     budget: u64,
-    /// Bytes of the budget taken by what lives beside the cache (the verified cull's
-    /// proxy): the cache keeps to what is left.
-    charged: AtomicU64,
     lru: Mutex<Lru>,
     totals: ReadCounts,
 }
@@ -134,8 +130,6 @@ pub struct BrickCache {
 pub struct CacheSummary {
     /// The budget in bytes.
     pub budget_bytes: u64,
-    /// Bytes of it charged to what lives beside the cache (the verified cull's proxy).
-    pub charged_bytes: u64,
     /// Voxel bytes cached now.
     pub cached_bytes: u64,
     /// The most voxel bytes cached at once.
@@ -160,7 +154,6 @@ impl BrickCache {
         BrickCache {
             source,
             budget,
-            charged: AtomicU64::new(0),
             lru: Mutex::default(),
             totals: ReadCounts::default(),
         }
@@ -176,19 +169,6 @@ impl BrickCache {
     #[must_use]
     pub fn budget(&self) -> u64 {
         self.budget
-    }
-
-    /// Takes `bytes` of the budget for something that stays in memory beside the cache
-    /// for the rest of the run; the cache keeps to the rest (evicting as it next reads),
-    /// caching nothing when nothing is left.
-    pub fn charge(&self, bytes: u64) {
-        self.charged.fetch_add(bytes, Ordering::Relaxed);
-    }
-
-    /// The bytes the cache may hold: the budget less what was charged.
-    fn room(&self) -> u64 {
-        self.budget
-            .saturating_sub(self.charged.load(Ordering::Relaxed))
     }
 
     /// Brick `id` of `grid` (cut from `volume`, the source's volume) with its apron: from
@@ -227,7 +207,7 @@ impl BrickCache {
             return Ok(held);
         }
         let start = counts.start.get().copied().unwrap_or(0);
-        l.insert(id, &copy, self.room(), start);
+        l.insert(id, &copy, self.budget, start);
         Ok(copy)
     }
 
@@ -237,7 +217,6 @@ impl BrickCache {
         let l = self.lru.lock().unwrap_or_else(PoisonError::into_inner);
         CacheSummary {
             budget_bytes: self.budget,
-            charged_bytes: self.charged.load(Ordering::Relaxed),
             cached_bytes: l.bytes,
             cache_peak_bytes: l.peak,
             evictions: l.evictions,

@@ -272,35 +272,6 @@ fn budgeted_frames_equal_unbudgeted_ones_in_every_cull_mode_and_rank_count() {
 }
 
 #[test]
-fn the_verified_culls_proxy_is_charged_to_the_budget() {
-    let vol = Phantom::SheppLogan.generate(40);
-    let tf = families::for_phantom(Phantom::SheppLogan);
-    let dir = tmp("charge");
-    let (path, spec) = write_raw(&vol, &dir, 0, Endian::Little);
-    // Half the volume: less than the bricks of a frame, more than the proxy.
-    let budget = super::volume_bytes(&vol) / 2;
-    let held = Scene::builder(raw::open(&path, &spec).unwrap(), tf)
-        .brick_size(8)
-        .memory_budget(Some(budget))
-        .build()
-        .unwrap();
-    let cam = camera(&vol, 30.0, 48);
-    let req = FrameRequest::new(&cam).cull(Cull::Verified(Predict::Proxy));
-    held.render(&req).unwrap();
-    let s = held.store().unwrap().summary();
-    assert!(s.charged_bytes > 0 && s.charged_bytes < budget, "{s:?}");
-    assert!(s.not_cached > 0, "the frame's bricks fit: {s:?}");
-    assert!(s.cache_peak_bytes + s.charged_bytes <= budget, "{s:?}");
-    // A second proxy frame charges nothing more.
-    held.render(&req).unwrap();
-    assert_eq!(
-        held.store().unwrap().summary().charged_bytes,
-        s.charged_bytes
-    );
-    std::fs::remove_dir_all(dir).unwrap();
-}
-
-#[test]
 fn a_budget_the_volume_fits_keeps_the_whole_volume() {
     let vol = Phantom::SheppLogan.generate(24);
     let tf = families::for_phantom(Phantom::SheppLogan);
