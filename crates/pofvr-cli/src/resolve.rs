@@ -82,6 +82,16 @@ pub(crate) fn volume(a: &VolumeArgs) -> Result<Volume> {
 /// Opens the volume named by the flags; an OME-Zarr image without `--level` is read at the
 /// finest level no larger than `max_dim` voxels on any axis, when given.
 pub(crate) fn volume_for(a: &VolumeArgs, max_dim: Option<usize>) -> Result<Volume> {
+    volume_deferring(a, max_dim, None)
+}
+
+/// [`volume_for`], except that a Zarr level of more than `defer_above` bytes (the memory
+/// budget) is not decoded: a brick store decodes its chunks on demand.
+pub(crate) fn volume_deferring(
+    a: &VolumeArgs,
+    max_dim: Option<usize>,
+    defer_above: Option<u64>,
+) -> Result<Volume> {
     if let Some((kind, dims)) = phantom_spec(&a.volume)? {
         return Ok(kind.generate_dims(dims));
     }
@@ -113,6 +123,7 @@ pub(crate) fn volume_for(a: &VolumeArgs, max_dim: Option<usize>) -> Result<Volum
         series: a.series.clone(),
         level: a.level,
         max_dim,
+        defer_above,
     };
     match Volume::open_with(path, &opts) {
         // Raw spacing comes from the flag; a header's spacing is the file's own fault.

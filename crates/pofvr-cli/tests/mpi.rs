@@ -103,6 +103,10 @@ fn text(out: &Output) -> String {
 }
 
 /// The ranks of a frame's `--stats` rendered as many bricks as were visible.
+fn refs(v: &[String]) -> Vec<&str> {
+    v.iter().map(String::as_str).collect()
+}
+
 fn assert_each_visible_brick_rendered_once(s: &serde_json::Value) {
     let rendered: u64 = s["ranks"]
         .as_array()
@@ -456,6 +460,87 @@ fn verified_culling_under_mpi_repairs_and_gives_the_in_process_frame() {
             }
             for r in s["ranks"].as_array().unwrap() {
                 assert!(r["verify_ms"].as_f64().is_some() && r["repair_ms"].as_f64().is_some());
+            }
+        }
+    }
+}
+
+#[test]
+#[ignore = "needs MPI (mpirun)"]
+fn mpi_ranks_under_a_budget_read_only_their_own_bricks_from_zarr_chunks() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = pofvr(
+        &["convert", "phantom:body:160x128x200", "b.zarr", "--quiet"],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tfs/ct-chest-skin-bone.json");
+    let tf = tf.to_str().unwrap();
+    let args = |cull: &'static str, raw: &str, stats: &str| -> Vec<String> {
+        [
+            "render",
+            "b.zarr",
+            "--level",
+            "0",
+            "--tf",
+            tf,
+            "--size",
+            "64x64",
+            "--view",
+            "0,-90",
+            "--cull",
+            cull,
+            "-o",
+            "x.png",
+            "--out-raw",
+            raw,
+            "--stats",
+            stats,
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let strs = |a: &[String], extra: &[&'static str]| -> Vec<String> {
+        a.iter()
+            .cloned()
+            .chain(extra.iter().map(|s| s.to_string()))
+            .collect()
+    };
+    for cull in ["none", "verified"] {
+        let want = format!("one-{cull}.raw");
+        let a = args(cull, &want, "one.json");
+        let o = pofvr(&refs(&strs(&a, &["--engine", "bricks"])), d);
+        assert!(o.status.success(), "{}", text(&o));
+        for np in [1, 3] {
+            let got = format!("mpi-{cull}-{np}.raw");
+            let stats = format!("mpi-{cull}-{np}.json");
+            let a = args(cull, &got, &stats);
+            // 8.2 MB of voxels: 4 MB holds neither the chunks nor the bricks of a frame.
+            let (o, _) = mpirun(np, &refs(&strs(&a, &["--memory-budget", "4M"])), d);
+            assert!(o.status.success(), "{cull} -np {np}: {}", text(&o));
+            let diff = max_diff(&d.join(&got), &d.join(&want));
+            assert!(diff <= 1e-6, "{cull} -np {np}: max diff {diff:e}");
+            let s: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+            assert_each_visible_brick_rendered_once(&s);
+            assert_eq!(s["memory_budget"]["source"], "zarr chunks", "{s}");
+            for r in s["ranks"].as_array().unwrap() {
+                let n = |k: &str| r[k].as_u64().unwrap();
+                // Every brick a rank renders comes from its own store: none is copied.
+                assert_eq!(
+                    n("bricks_read") + n("cache_hits"),
+                    n("bricks_rendered"),
+                    "{s}"
+                );
+                assert!(
+                    n("bytes_read") > 0,
+                    "{cull} -np {np}: a rank read nothing: {s}"
+                );
+            }
+            for m in s["memory"].as_array().unwrap() {
+                assert_eq!(m["brick_copy_bytes"], 0, "{s}");
             }
         }
     }

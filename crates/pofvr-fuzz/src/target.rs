@@ -100,7 +100,12 @@ impl Target {
     /// data can hold must fail before allocating for them.
     #[must_use]
     pub fn allocation_limit(&self, len: usize) -> usize {
-        (16 << 20) + 64 * (len + FIXTURE.len())
+        // Zarr chunks are compressed (zstd): a 30-byte frame of a valid store decodes to a
+        // 512 KB chunk of zeros, so the decoded size of a valid input is not bounded by 64
+        // times its length. Its reader checks what the data can bound (every chunk present,
+        // uncompressed chunks exactly one chunk long) before sizing anything by the shape.
+        let per_byte = if self.name == "zarr" { 1 << 14 } else { 64 };
+        (16 << 20) + per_byte * (len + FIXTURE.len())
     }
 }
 
@@ -137,6 +142,16 @@ pub const TARGETS: &[Target] = &[
             };
             volume(&s.write(name, d))
         },
+    },
+    Target {
+        name: "dicom",
+        what: "one slice of a three-slice DICOM series (the middle one)",
+        run: dicom,
+    },
+    Target {
+        name: "zarr",
+        what: "a Zarr v3 store (array or OME-Zarr group) packed as files, decoded whole and chunk by chunk",
+        run: zarr,
     },
     Target {
         name: "pof",
@@ -177,6 +192,12 @@ fn volume(path: &Path) -> bool {
     let Ok(v) = Volume::open(path, None) else {
         return false;
     };
+    volume_checks(&v);
+    true
+}
+
+/// The invariants of an accepted volume.
+fn volume_checks(v: &Volume) {
     let [x, y, z] = v.dims();
     assert!(x > 0 && y > 0 && z > 0, "accepted dims {:?}", v.dims());
     assert_eq!(v.data().len(), x * y * z, "voxel count of {:?}", v.dims());
@@ -188,7 +209,6 @@ fn volume(path: &Path) -> bool {
     // Every voxel can be read where the renderer reads it.
     let _ = (v.value(0, 0, 0), v.value(x - 1, y - 1, z - 1));
     assert!(v.world_extent().iter().all(|e| e.is_finite()));
-    true
 }
 
 fn tf(d: &[u8]) -> bool {
@@ -265,4 +285,137 @@ fn query(d: &[u8]) -> bool {
     assert!(p.options.cull_threshold > 0.0 && p.options.cull_threshold <= 1.0);
     assert!(!p.client.is_empty() && p.client.len() <= params::MAX_CLIENT_ID);
     true
+}
+
+/// The series the `dicom` target's input joins: slices 0 and 2 of an 8×8×3 body phantom in
+/// HU, written once per scratch directory; the input is slice 1.
+fn dicom(s: &Scratch, d: &[u8]) -> bool {
+    use pofvr::volume::dicom_write::{write_series, SeriesOptions};
+    let dir = s.path().join("dicom");
+    if !dir.join("slice_0000.dcm").is_file() {
+        let v = pofvr::volume::phantom::Phantom::Body.generate_dims([8, 8, 3]);
+        let opts = SeriesOptions {
+            intercept: -1024,
+            ..SeriesOptions::default()
+        };
+        write_series(&v, &dir, &opts).expect("the DICOM fixture");
+    }
+    std::fs::write(dir.join("slice_0001.dcm"), d).expect("write the input");
+    let Ok(v) = Volume::open_with(&dir, &pofvr::volume::OpenOptions::default()) else {
+        return false;
+    };
+    // Slice 1 may be skipped as not DICOM: then slices 0 and 2 are a series too.
+    let [x, y, z] = v.dims();
+    assert!(
+        [x, y] == [8, 8] && (z == 2 || z == 3),
+        "8×8 slices: {:?}",
+        v.dims()
+    );
+    volume_checks(&v);
+    true
+}
+
+/// Separates the files of a `zarr` target input: each file is `PATH\n` then its bytes.
+pub const ZARR_FILE_MARK: &[u8] = b"\n\x00@@file ";
+
+/// Unpacks a `zarr` input into a fresh store folder: files separated by [`ZARR_FILE_MARK`],
+/// each named by its first line (relative, plain components only). Opens the store
+/// decoded whole and, under a budget of 1 byte, not decoded: then every voxel is read from
+/// the chunks box by box, and both must agree.
+fn zarr(s: &Scratch, d: &[u8]) -> bool {
+    let root = s.path().join("store.zarr");
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).expect("store folder");
+    for part in split(d, ZARR_FILE_MARK) {
+        let (name, bytes) = match part.iter().position(|b| *b == b'\n') {
+            Some(i) => (&part[..i], &part[i + 1..]),
+            None => continue,
+        };
+        let Ok(name) = std::str::from_utf8(name) else {
+            continue;
+        };
+        let plain = |c: &str| {
+            !c.is_empty()
+                && c != "."
+                && c != ".."
+                && c.bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b"._-".contains(&b))
+        };
+        let comps: Vec<&str> = name.split('/').collect();
+        if comps.len() > 8 || !comps.iter().all(|c| plain(c)) {
+            continue;
+        }
+        let path = root.join(name);
+        if let Some(p) = path.parent() {
+            if std::fs::create_dir_all(p).is_err() {
+                continue;
+            }
+        }
+        let _ = std::fs::write(&path, bytes);
+    }
+    let whole = Volume::open(&root, None);
+    let opts = pofvr::volume::OpenOptions {
+        defer_above: Some(1),
+        ..pofvr::volume::OpenOptions::default()
+    };
+    let lazy = Volume::open_with(&root, &opts);
+    let (whole, lazy) = match (whole, lazy) {
+        (Ok(w), Ok(l)) => (w, l),
+        // Opening checks only the metadata; a bad chunk shows when it is decoded.
+        (Err(_), Ok(l)) => {
+            let _ = read_all(&l);
+            return false;
+        }
+        (Ok(_), Err(e)) => panic!("decoded whole, but not opened deferred: {e}"),
+        (Err(_), Err(_)) => return false,
+    };
+    volume_checks(&whole);
+    assert!(!lazy.is_resident());
+    assert_eq!(lazy.dims(), whole.dims());
+    let read = read_all(&lazy).expect("every chunk decoded whole decodes on demand");
+    let same = pofvr::with_voxels!(whole.data(), v => {
+        v.iter().zip(&read).all(|(a, b)| pofvr::volume::Voxel::to_f32(*a).to_bits() == b.to_bits())
+    });
+    assert!(
+        same && read.len() == whole.data().len(),
+        "chunk reads differ from the decode"
+    );
+    true
+}
+
+/// Every voxel of a non-resident volume, read from its chunks in bricks of 5³.
+fn read_all(v: &Volume) -> Result<Vec<f32>, pofvr::volume::VolumeError> {
+    let src = pofvr::store::BrickSource::of(v)?;
+    if let Some(z) = src.zarr() {
+        z.set_chunk_budget(1 << 20);
+    }
+    let d = v.dims();
+    let mut out = vec![0f32; d.iter().product()];
+    let b = 5;
+    for z0 in (0..d[2]).step_by(b) {
+        for y0 in (0..d[1]).step_by(b) {
+            for x0 in (0..d[0]).step_by(b) {
+                let n = [b.min(d[0] - x0), b.min(d[1] - y0), b.min(d[2] - z0)];
+                let data = src.read_box(v, [x0, y0, z0], n)?;
+                pofvr::with_voxels!(&data, vals => {
+                    for (i, val) in vals.iter().enumerate() {
+                        let (x, y, z) = (x0 + i % n[0], y0 + (i / n[0]) % n[1], z0 + i / (n[0] * n[1]));
+                        out[x + d[0] * (y + d[1] * z)] = pofvr::volume::Voxel::to_f32(*val);
+                    }
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn split<'a>(d: &'a [u8], mark: &[u8]) -> Vec<&'a [u8]> {
+    let mut parts = Vec::new();
+    let mut rest = d;
+    while let Some(i) = rest.windows(mark.len()).position(|w| w == mark) {
+        parts.push(&rest[..i]);
+        rest = &rest[i + mark.len()..];
+    }
+    parts.push(rest);
+    parts
 }

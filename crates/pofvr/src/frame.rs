@@ -898,6 +898,20 @@ fn rank_frame(
     // What this rank reads from the brick store (its own bricks only).
     let reads = crate::store::ReadCounts::default();
     let render_all = |ids: &[BrickId]| -> Result<(Vec<TileFragment>, RayStats), FrameError> {
+        // From a store, bricks go in id order (z slowest): neighbours sharing a Zarr chunk
+        // follow each other, so that each chunk is decoded about once while it is cached.
+        // Fragments are composited by their (depth, brick) keys, whatever their order.
+        let sorted: Vec<BrickId>;
+        let ids = if job.store.is_some() {
+            sorted = {
+                let mut v = ids.to_vec();
+                v.sort_unstable();
+                v
+            };
+            &sorted[..]
+        } else {
+            ids
+        };
         let done: Vec<(TileFragment, RayStats)> = ids
             .par_iter()
             .map(|id| {

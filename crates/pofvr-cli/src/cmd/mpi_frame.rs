@@ -2,7 +2,9 @@
 //! [`pofvr_mpi::MpiCommunicator`] wired to the library's
 //! [`pofvr::distribute::setup::DistributedRank`]. Every rank opens the volume memory-mapped
 //! and reads only the bricks it owns (measuring their ranges, which the ranks exchange, and
-//! ray-casting them), renders its share of each frame, and rank 0 writes the outputs and
+//! ray-casting them; under a `--memory-budget` the volume does not fit, read on demand from
+//! the file or a Zarr level's chunks into a brick cache rather than copied), renders its
+//! share of each frame, and rank 0 writes the outputs and
 //! `--stats`, which gains `mpi_ranks` and `memory` (every rank's resident memory and host).
 //!
 //! Any error on any rank (a missing file, a bad flag, a failed exchange) and any panic ends
@@ -27,8 +29,10 @@ use crate::progress::Ui;
 /// Bound on the end-of-run memory gather (it only turns a lost rank into an error).
 const GATHER_TIMEOUT: Duration = Duration::from_secs(120);
 
-/// This process's rank, through the library's distributed set-up.
-struct Mpi<'a>(DistributedRank<'a>);
+/// This process's rank, through the library's distributed set-up, and the memory budget:
+/// under one that the volume does not fit, the rank measures and renders its own bricks
+/// read on demand from the file or the Zarr chunks instead of copying them.
+struct Mpi<'a>(DistributedRank<'a>, Option<u64>);
 
 impl Backend for Mpi<'_> {
     fn is_root(&self) -> bool {
@@ -44,11 +48,16 @@ impl Backend for Mpi<'_> {
     }
 
     fn grid(&self, volume: &Volume, brick_size: usize, curve: Curve) -> Result<BrickGrid> {
-        Ok(self.0.measure_grid(volume, brick_size, curve)?)
+        Ok(self
+            .0
+            .measure_grid_within(volume, brick_size, curve, self.1)?)
     }
 
     fn prepare(&self, job: &mut RenderJob, curve: Curve, replicas: usize) -> Result<()> {
-        Ok(self.0.keep_own_bricks(job, curve, replicas)?)
+        match self.1 {
+            Some(b) => Ok(self.0.read_own_bricks(job, curve, replicas, b)?),
+            None => Ok(self.0.keep_own_bricks(job, curve, replicas)?),
+        }
     }
 
     fn finish(&self) -> Result<Option<serde_json::Map<String, serde_json::Value>>> {
@@ -88,7 +97,8 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
         if a.frame.whole {
             bail!("--whole is the single-process reference renderer; run it without mpirun");
         }
-        render::run_with(a, ui, &Mpi(DistributedRank::new(&comm)))
+        let budget = render::memory_budget(a.memory_budget.as_deref())?;
+        render::run_with(a, ui, &Mpi(DistributedRank::new(&comm), budget))
     })();
     if let Err(e) = result {
         comm.abort_job(&format!("{e:#}"));

@@ -138,7 +138,8 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     let max_dim = resolve::size(&a.view.size)
         .ok()
         .map(|(w, h)| 2 * w.max(h) as usize);
-    let vol = resolve::volume_for(&a.volume, max_dim)?;
+    // A Zarr level larger than the budget is not decoded: the store decodes its chunks.
+    let vol = resolve::volume_deferring(&a.volume, max_dim, budget)?;
     let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
     let cam = resolve::camera(&a.view, &vol)?;
     let curve: Curve = a
@@ -411,6 +412,17 @@ pub(crate) fn budget_json(
                     .into(),
             );
             m.insert("cache".into(), serde_json::to_value(store.summary())?);
+            if let Some(z) = store.source().zarr() {
+                m.insert(
+                    "zarr_chunks".into(),
+                    serde_json::json!({
+                        "chunk_budget_bytes": z.chunk_budget(),
+                        "chunk_shape": z.level().chunk_shape(),
+                        "chunks_decoded": z.chunks_decoded(),
+                        "chunk_evictions": z.chunk_evictions(),
+                    }),
+                );
+            }
         }
         None => {
             m.insert(

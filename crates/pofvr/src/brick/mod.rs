@@ -89,6 +89,26 @@ impl BrickGrid {
         Self::from_volume_where(volume, brick_size, &|_| true)
     }
 
+    /// The grid of a volume of `dims` voxels cut into `brick_size`³ bricks, no brick
+    /// measured (every range empty until [`BrickGrid::set_range`]): for ranges measured
+    /// elsewhere, from storage or by other ranks, without touching the volume's voxels.
+    ///
+    /// # Errors
+    /// [`BrickError::BadSize`] when `brick_size` is outside `2..=1024`.
+    pub fn unmeasured(dims: [usize; 3], brick_size: usize) -> Result<Self, BrickError> {
+        let counts = Self::counts_for(dims, brick_size)?;
+        let empty = ValueRange {
+            min: f32::INFINITY,
+            max: f32::NEG_INFINITY,
+        };
+        Ok(BrickGrid {
+            brick_size,
+            volume_dims: dims,
+            counts,
+            ranges: vec![empty; counts[0] * counts[1] * counts[2]],
+        })
+    }
+
     /// Bricks along x, y, z for a volume of `dims` voxels cut into `brick_size`³ bricks.
     ///
     /// # Errors

@@ -47,6 +47,10 @@ pub enum SetupError {
         /// How many bytes it sent.
         bytes: usize,
     },
+    /// A rank's own bricks could not be read from the volume's storage (a Zarr level
+    /// under a memory budget).
+    #[error(transparent)]
+    Store(Box<crate::Error>),
     /// A brick whose range no rank sent.
     #[error("brick {0}: no rank measured its value range")]
     Unmeasured(usize),
@@ -97,7 +101,24 @@ impl<'c> DistributedRank<'c> {
         brick_size: usize,
         curve: Curve,
     ) -> Result<BrickGrid, SetupError> {
-        let result = self.measure_grid_inner(volume, brick_size, curve);
+        self.measure_grid_within(volume, brick_size, curve, None)
+    }
+
+    /// [`DistributedRank::measure_grid`] under a memory budget: a volume that does not fit
+    /// it has this rank's bricks read from storage ([`crate::store::measure_own`]: positioned
+    /// reads of a raw file, or a Zarr level's chunks), not through the memory map.
+    ///
+    /// # Errors
+    /// As [`DistributedRank::measure_grid`], and [`SetupError::Store`] for a missing or
+    /// corrupt chunk.
+    pub fn measure_grid_within(
+        &self,
+        volume: &Volume,
+        brick_size: usize,
+        curve: Curve,
+        budget: Option<u64>,
+    ) -> Result<BrickGrid, SetupError> {
+        let result = self.measure_grid_inner(volume, brick_size, curve, budget);
         if let Err(e) = &result {
             if !e.is_abort() {
                 self.comm.abort(&e.to_string());
@@ -111,12 +132,18 @@ impl<'c> DistributedRank<'c> {
         volume: &Volume,
         brick_size: usize,
         curve: Curve,
+        budget: Option<u64>,
     ) -> Result<BrickGrid, SetupError> {
         let counts = BrickGrid::counts_for(volume.dims(), brick_size)?;
         let owners = BrickAssignment::new(counts, curve, self.comm.size())?;
         let me = self.comm.rank();
-        let mut grid =
-            BrickGrid::from_volume_where(volume, brick_size, &|id| owners.owner(id) == Some(me))?;
+        let mut grid = crate::store::measure_own(volume, brick_size, budget, &|id| {
+            owners.owner(id) == Some(me)
+        })
+        .map_err(|e| match e {
+            crate::Error::Brick(b) => SetupError::Brick(b),
+            e => SetupError::Store(Box::new(e)),
+        })?;
         let mine = encode_ranges(&grid, owners.of(me));
         let all = self.comm.all_gather(mine, EXCHANGE_TIMEOUT)?;
         apply_ranges(&mut grid, &all)?;
@@ -137,12 +164,49 @@ impl<'c> DistributedRank<'c> {
         replicas: usize,
     ) -> Result<(), SetupError> {
         let owners = job.assignment(curve, self.comm.size(), replicas)?;
+        if !job.volume.is_resident() {
+            // No voxels to copy from: such a job reads its bricks through a store.
+            return Err(SetupError::Store(Box::new(crate::Error::Engine {
+                engine: "bricks",
+                why: format!(
+                    "{} is a Zarr level larger than the memory budget: its ranks read their bricks on demand (DistributedRank::read_own_bricks) rather than copy them",
+                    job.volume.source()
+                ),
+            })));
+        }
         let store = BrickStore::new(&job.volume, &job.grid, &owners.held_by(self.comm.rank()));
         job.volume.release_pages();
         self.copy_bytes
             .store(store.bytes() as u64, Ordering::Relaxed);
         job.bricks = Some(store);
         Ok(())
+    }
+
+    /// Under a memory budget the volume does not fit: instead of copies of all its bricks
+    /// ([`DistributedRank::keep_own_bricks`]), this rank reads the bricks it renders (its
+    /// own, and the repairs it owns) on demand into a brick cache within `budget`
+    /// ([`crate::store::cache_for`]), from the raw file or the Zarr chunks. A volume that
+    /// fits the budget keeps its copies.
+    ///
+    /// # Errors
+    /// As [`DistributedRank::keep_own_bricks`], and [`SetupError::Store`] when the file
+    /// cannot be opened again.
+    pub fn read_own_bricks(
+        &self,
+        job: &mut RenderJob,
+        curve: Curve,
+        replicas: usize,
+        budget: u64,
+    ) -> Result<(), SetupError> {
+        match crate::store::cache_for(&job.volume, Some(budget)) {
+            Ok(Some(store)) => {
+                job.store = Some(store);
+                self.copy_bytes.store(0, Ordering::Relaxed);
+                Ok(())
+            }
+            Ok(None) => self.keep_own_bricks(job, curve, replicas),
+            Err(e) => Err(SetupError::Store(Box::new(e))),
+        }
     }
 
     /// Voxel bytes of the copies [`DistributedRank::keep_own_bricks`] made (0 before).

@@ -249,6 +249,7 @@ impl Scene {
         partial: Option<&Path>,
         progress: &(dyn Fn(u64, u64) + Sync),
     ) -> Result<PofTable> {
+        self.whole_lattice("a POF build")?;
         let settings = build.settings(self.step(), self.early_termination());
         let j = &self.job;
         Ok(PofTable::build_resumable(
@@ -268,6 +269,7 @@ impl Scene {
         progress: &(dyn Fn(u64, u64) + Sync),
         cancel: &AtomicBool,
     ) -> Result<PofTable> {
+        self.whole_lattice("a POF build")?;
         let settings = build.settings(self.step(), self.early_termination());
         let j = &self.job;
         Ok(PofTable::build_cancellable(
@@ -379,6 +381,12 @@ impl Scene {
         let weights = req.weights.unwrap_or(&self.job.tf.weights);
         check_weights(&self.job.tf, weights)?;
         let mode = req.cull.mode();
+        if mode == CullMode::Exact {
+            self.whole_lattice("the exact cull")?;
+        }
+        if self.job.store.is_none() {
+            self.whole_lattice("a scene without a brick store")?;
+        }
         if self.job.settings.jitter.is_some() && req.cull.pofs().is_some() {
             return Err(Error::JitteredPofs { mode });
         }
@@ -409,6 +417,22 @@ impl Scene {
             predictor: req.cull.predictor(),
         };
         Ok((look, opts))
+    }
+
+    /// An error when `what` would sample the whole lattice of a volume whose voxels are
+    /// not resident (a Zarr level larger than the memory budget, decoded chunk by chunk
+    /// for the bricks rendered): silent zeros would be a wrong image.
+    fn whole_lattice(&self, what: &str) -> Result<()> {
+        if self.job.volume.is_resident() {
+            return Ok(());
+        }
+        Err(Error::Engine {
+            engine: "reference",
+            why: format!(
+                "{what} samples the whole volume, and {} is a Zarr level larger than the memory budget whose chunks are decoded only for the bricks rendered: render with the brick engine and --cull none or verified, or raise --memory-budget",
+                self.job.volume.source()
+            ),
+        })
     }
 
     /// The bounds every mode is given: the scene's POFs, whatever the mode (the POF modes
@@ -514,6 +538,7 @@ impl Scene {
     /// [`Error::Camera`] for a camera that defines no view, [`Error::WeightCount`] or
     /// [`Error::Weight`] for bad weights.
     pub fn render_reference(&self, req: &FrameRequest<'_>) -> Result<Frame> {
+        self.whole_lattice("the whole-volume pass")?;
         req.camera.validate(GIVEN_CAMERA)?;
         let weights = req.weights.unwrap_or(&self.job.tf.weights);
         check_weights(&self.job.tf, weights)?;

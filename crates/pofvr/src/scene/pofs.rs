@@ -271,13 +271,13 @@ pub(crate) fn load_levels_for(
                 });
             }
         } else {
-            fine =
-                Some(
-                    BrickGrid::from_volume(&job.volume, size).map_err(|e| PofError::Setting {
-                        field: "brick_size",
-                        why: e.to_string(),
-                    })?,
-                );
+            fine = Some(
+                // Streamed from the store's chunks when the voxels are not resident.
+                crate::store::grid_for(&job.volume, size, None).map_err(|e| PofError::Setting {
+                    field: "brick_size",
+                    why: e.to_string(),
+                })?,
+            );
         }
         let grid = fine.as_ref().expect("made above");
         let why = check_table(job, grid, &table, any_shapes)?;

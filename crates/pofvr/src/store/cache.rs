@@ -197,9 +197,8 @@ impl BrickCache {
         // Read outside the lock: other threads keep hitting while this one waits on the
         // file. Two threads missing the same brick both read it (and both count it).
         let (origin, dims) = BrickCopy::apron_box(grid, id);
-        let data = self.source.read_box(volume, origin, dims)?;
+        let (data, bytes) = self.source.read_box_counted(volume, origin, dims)?;
         let copy = Arc::new(BrickCopy::from_parts(origin, dims, data));
-        let bytes = copy.bytes() as u64;
         counts.add(bytes, 1, 0);
         self.totals.add(bytes, 1, 0);
         let mut l = lru();
@@ -207,7 +206,12 @@ impl BrickCache {
             return Ok(held);
         }
         let start = counts.start.get().copied().unwrap_or(0);
-        l.insert(id, &copy, self.budget, start);
+        // A Zarr source's decoded chunks hold their share of the budget.
+        let chunks = self
+            .source
+            .zarr()
+            .map_or(0, super::ZarrSource::chunk_budget);
+        l.insert(id, &copy, self.budget.saturating_sub(chunks), start);
         Ok(copy)
     }
 

@@ -23,7 +23,7 @@ pub fn measure_grid(
     max_slab_bytes: u64,
 ) -> Result<BrickGrid> {
     // No brick is measured here: every range starts empty and is set below.
-    let mut grid = BrickGrid::from_volume_where(volume, brick_size, &|_| false)?;
+    let mut grid = BrickGrid::unmeasured(volume.dims(), brick_size)?;
     let d = volume.dims();
     let c = grid.counts();
     let b = brick_size;

@@ -1,9 +1,11 @@
 //! Where a brick store's voxels come from: a file read at positions (raw data at an offset,
-//! in its stored type and byte order), or a volume already in memory.
+//! in its stored type and byte order), a Zarr level's chunks decoded on demand, or a volume
+//! already in memory.
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
+use super::zarr_source::ZarrSource;
 use crate::volume::{DataType, Endian, RawSpec, Volume, VolumeError, Voxel, VoxelData, Voxels};
 
 /// The origin of the voxels a store reads.
@@ -19,6 +21,9 @@ pub enum BrickSource {
         /// The layout: dims, type, byte order, offset.
         spec: RawSpec,
     },
+    /// A Zarr level that is not resident: boxes assembled from its chunks, decoded on
+    /// demand into a cache of decoded chunks ([`ZarrSource`]).
+    Zarr(ZarrSource),
     /// The volume's own voxels, copied out (a generated or decoded volume, already in
     /// memory: the store then bounds the copies, not the volume).
     Memory,
@@ -38,30 +43,45 @@ impl BrickSource {
         })
     }
 
-    /// The file source of `volume` when its voxels are stored uncompressed in a file,
-    /// otherwise [`BrickSource::Memory`].
+    /// The file source of `volume` when its voxels are stored uncompressed in a file, its
+    /// Zarr source when they are not resident (a decoded-chunk cache of 0 bytes until
+    /// [`ZarrSource::set_chunk_budget`]), otherwise [`BrickSource::Memory`].
     ///
     /// # Errors
     /// [`VolumeError::Io`] when the file cannot be opened again.
     pub fn of(volume: &Volume) -> Result<Self, VolumeError> {
+        if let Some(level) = volume.zarr_level() {
+            return Ok(BrickSource::Zarr(ZarrSource::new(level.clone(), 0)));
+        }
         match volume.raw_file() {
             Some((path, spec)) => Self::file(path, spec),
             None => Ok(BrickSource::Memory),
         }
     }
 
-    /// True when boxes are read from a file.
+    /// True when boxes are read from storage (a raw file or a Zarr store), not copied
+    /// from memory: the volume is then never sampled whole.
     #[must_use]
     pub fn is_file(&self) -> bool {
-        matches!(self, BrickSource::File { .. })
+        !matches!(self, BrickSource::Memory)
     }
 
-    /// A name for `--stats`: "raw file" or "memory".
+    /// A name for `--stats`: "raw file", "zarr chunks" or "memory".
     #[must_use]
     pub fn kind(&self) -> &'static str {
         match self {
             BrickSource::File { .. } => "raw file",
+            BrickSource::Zarr(_) => "zarr chunks",
             BrickSource::Memory => "memory",
+        }
+    }
+
+    /// The Zarr source, when boxes come from a Zarr level's chunks.
+    #[must_use]
+    pub fn zarr(&self) -> Option<&ZarrSource> {
+        match self {
+            BrickSource::Zarr(z) => Some(z),
+            _ => None,
         }
     }
 
@@ -77,8 +97,29 @@ impl BrickSource {
         origin: [usize; 3],
         n: [usize; 3],
     ) -> Result<VoxelData, VolumeError> {
+        Ok(self.read_box_counted(volume, origin, n)?.0)
+    }
+
+    /// [`BrickSource::read_box`], with the bytes read for it from storage: the box's bytes
+    /// for a file or memory, the encoded (compressed) bytes of the chunks decoded for it
+    /// for a Zarr level (0 when they were all cached).
+    ///
+    /// # Errors
+    /// As [`BrickSource::read_box`]; for a Zarr level [`VolumeError::Decode`] naming a
+    /// missing or corrupt chunk.
+    pub fn read_box_counted(
+        &self,
+        volume: &Volume,
+        origin: [usize; 3],
+        n: [usize; 3],
+    ) -> Result<(VoxelData, u64), VolumeError> {
+        let plain = |d: VoxelData| {
+            let b = d.len() as u64 * d.data_type().size() as u64;
+            (d, b)
+        };
         match self {
-            BrickSource::Memory => Ok(copy_from_memory(volume, origin, n)),
+            BrickSource::Zarr(z) => z.read_box(origin, n),
+            BrickSource::Memory => Ok(plain(copy_from_memory(volume, origin, n))),
             BrickSource::File { file, path, spec } => {
                 let r = FileBox {
                     file,
@@ -87,12 +128,12 @@ impl BrickSource {
                     origin,
                     n,
                 };
-                Ok(match spec.dtype {
+                Ok(plain(match spec.dtype {
                     DataType::U8 => VoxelData::U8(Voxels::owned(r.read()?)),
                     DataType::U16 => VoxelData::U16(Voxels::owned(r.read()?)),
                     DataType::I16 => VoxelData::I16(Voxels::owned(r.read()?)),
                     DataType::F32 => VoxelData::F32(Voxels::owned(r.finite(r.read()?)?)),
-                })
+                }))
             }
         }
     }

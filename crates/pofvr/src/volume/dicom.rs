@@ -77,6 +77,9 @@ fn tag_name(tag: Tag) -> String {
     format!("{name} ({:04X},{:04X})", tag.group(), tag.element())
 }
 
+/// The RLE Lossless transfer syntax, the one compressed syntax read.
+const RLE_LOSSLESS: &str = "1.2.840.10008.1.2.5";
+
 fn bad(file: &Path, tag: Tag, why: impl Into<String>) -> VolumeError {
     VolumeError::header(file, &tag_name(tag), why)
 }
@@ -136,7 +139,22 @@ fn float_or(
     }
 }
 
+/// Reads `file` whole (a slice is small) and walks its element headers
+/// ([`super::dicom_scan`]) before dicom-rs reserves what they claim; with the file's size.
+fn check_file(file: &Path) -> Result<u64, VolumeError> {
+    let bytes = std::fs::read(file).map_err(|e| VolumeError::io(file, e))?;
+    super::dicom_scan::check_lengths(&bytes).map_err(|b| match b.tag {
+        Some(tag) => bad(file, tag, b.why),
+        None => VolumeError::Decode {
+            file: file.display().to_string(),
+            why: format!("not a readable DICOM file: {}", b.why),
+        },
+    })?;
+    Ok(bytes.len() as u64)
+}
+
 fn read_header(file: &Path) -> Result<Slice, VolumeError> {
+    let file_len = check_file(file)?;
     let obj = OpenFileOptions::new()
         .read_until(tags::PIXEL_DATA)
         .open_file(file)
@@ -200,6 +218,22 @@ fn read_header(file: &Path) -> Result<Slice, VolumeError> {
     if rows == 0 || cols == 0 {
         return Err(bad(file, tags::ROWS, format!("{cols}×{rows} pixels")));
     }
+    let transfer_syntax = obj
+        .meta()
+        .transfer_syntax()
+        .trim_end_matches('\0')
+        .to_string();
+    // The pixels a slice claims must fit in its file (RLE expands a byte pair to at most
+    // 128 bytes): the series' buffer is sized by these claims.
+    let need = (rows * cols * (bits_allocated as usize / 8)) as u64;
+    let rle = transfer_syntax == RLE_LOSSLESS;
+    if need > file_len.saturating_mul(if rle { 64 } else { 1 }) {
+        return Err(bad(
+            file,
+            tags::PIXEL_DATA,
+            format!("{cols}×{rows} pixels of {bits_allocated} bits do not fit in a file of {file_len} bytes"),
+        ));
+    }
     let slope = float_or(&obj, file, tags::RESCALE_SLOPE, 1.0)?;
     if slope == 0.0 {
         return Err(bad(file, tags::RESCALE_SLOPE, "must not be 0"));
@@ -217,11 +251,7 @@ fn read_header(file: &Path) -> Result<Slice, VolumeError> {
         signed: int(&obj, file, tags::PIXEL_REPRESENTATION, Some(0))? == 1,
         slope,
         intercept: float_or(&obj, file, tags::RESCALE_INTERCEPT, 0.0)?,
-        transfer_syntax: obj
-            .meta()
-            .transfer_syntax()
-            .trim_end_matches('\0')
-            .to_string(),
+        transfer_syntax,
     })
 }
 
@@ -505,6 +535,8 @@ fn read_all<T: Send + Copy + Default>(
 /// A slice's pixel bytes, little-endian, exactly rows × columns × bytes long.
 fn pixel_bytes(s: &Slice) -> Result<Vec<u8>, VolumeError> {
     let file = &s.file;
+    // The file may have changed since its header was read.
+    check_file(file)?;
     let obj = dicom_object::open_file(file).map_err(|e| VolumeError::Decode {
         file: file.display().to_string(),
         why: format!("{}: {e}", tag_name(tags::PIXEL_DATA)),
@@ -520,8 +552,8 @@ fn pixel_bytes(s: &Slice) -> Result<Vec<u8>, VolumeError> {
             )
         })?;
     let bytes = if ts.is_encapsulated_pixel_data() {
-        let reader = ts.pixel_data_reader().ok_or_else(|| {
-            bad(
+        if s.transfer_syntax != RLE_LOSSLESS {
+            return Err(bad(
                 file,
                 tags::TRANSFER_SYNTAX_UID,
                 format!(
@@ -529,17 +561,22 @@ fn pixel_bytes(s: &Slice) -> Result<Vec<u8>, VolumeError> {
                     ts.name(),
                     s.transfer_syntax
                 ),
-            )
-        })?;
-        let mut buf = Vec::new();
-        reader.decode_frame(&obj, 0, &mut buf).map_err(|e| {
-            bad(
-                file,
-                tags::PIXEL_DATA,
-                format!("RLE data do not decode: {e}"),
-            )
-        })?;
-        buf
+            ));
+        }
+        // Decoded by our own checked decoder (dicom-rs's indexes past short segments).
+        let fragments = obj
+            .element(tags::PIXEL_DATA)
+            .ok()
+            .and_then(|e| e.value().fragments())
+            .ok_or_else(|| bad(file, tags::PIXEL_DATA, "no RLE fragments"))?;
+        super::dicom_rle::decode(fragments, s.rows, s.cols, usize::from(s.bits_allocated / 8))
+            .map_err(|why| {
+                bad(
+                    file,
+                    tags::PIXEL_DATA,
+                    format!("RLE data do not decode: {why}"),
+                )
+            })?
     } else {
         if ts.endianness() != dicom_encoding::transfer_syntax::Endianness::Little {
             return Err(bad(

@@ -9,6 +9,8 @@
 
 mod body;
 pub mod dicom;
+mod dicom_rle;
+mod dicom_scan;
 pub mod dicom_write;
 mod error;
 mod header;
@@ -197,7 +199,12 @@ impl VoxelData {
     /// Number of voxels.
     #[must_use]
     pub fn len(&self) -> usize {
-        with_voxels!(self, v => v.len())
+        match self {
+            VoxelData::U8(x) => x.len(),
+            VoxelData::U16(x) => x.len(),
+            VoxelData::I16(x) => x.len(),
+            VoxelData::F32(x) => x.len(),
+        }
     }
 
     /// True when there are no voxels.
@@ -229,6 +236,10 @@ pub struct OpenOptions {
     pub level: Option<usize>,
     /// Without a level: the finest OME-Zarr level whose largest dimension is at most this.
     pub max_dim: Option<usize>,
+    /// A Zarr level of more voxel bytes than this is not decoded when opened: its chunks
+    /// are decoded on demand by a brick store under a memory budget (`--memory-budget`;
+    /// see [`Volume::is_resident`]). `None`: every level is decoded whole.
+    pub defer_above: Option<u64>,
 }
 
 /// A dense scalar volume.
@@ -241,6 +252,9 @@ pub struct Volume {
     /// The file and layout the voxels are stored at uncompressed, when they are (raw,
     /// NRRD and MetaImage raw data): what a brick store reads bricks from on demand.
     raw_file: Option<(std::path::PathBuf, RawSpec)>,
+    /// The Zarr array whose chunks hold the voxels when they are not resident: what a
+    /// brick store decodes on demand.
+    zarr: Option<std::sync::Arc<zarr::ZarrLevel>>,
 }
 
 impl Volume {
@@ -261,16 +275,7 @@ impl Volume {
     ) -> Result<Self, VolumeError> {
         let source = source.into();
         let n = checked_voxel_count(&source, dims)?;
-        // A finite spacing times the voxel count can still overflow f32: every camera and
-        // ray built on that extent would be NaN.
-        let extent_ok =
-            (0..3).all(|a| ((dims[a].saturating_sub(1)) as f32 * spacing[a]).is_finite());
-        if !extent_ok || spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(VolumeError::BadSpacing {
-                file: source,
-                spacing,
-            });
-        }
+        check_spacing(&source, dims, spacing)?;
         if data.len() != n {
             return Err(VolumeError::SizeMismatch {
                 file: source,
@@ -295,6 +300,37 @@ impl Volume {
             data,
             source,
             raw_file: None,
+            zarr: None,
+        })
+    }
+
+    /// A volume whose voxels stay in the Zarr array `level` (not decoded): its samplers
+    /// cannot run over the whole lattice, a brick store reads its bricks.
+    ///
+    /// # Errors
+    /// As [`Volume::new`] for the dims and spacing.
+    pub(crate) fn deferred(
+        dims: [usize; 3],
+        spacing: [f32; 3],
+        dtype: DataType,
+        source: String,
+        level: std::sync::Arc<zarr::ZarrLevel>,
+    ) -> Result<Self, VolumeError> {
+        let n = checked_voxel_count(&source, dims)?;
+        let data = match dtype {
+            DataType::U8 => VoxelData::U8(Voxels::deferred(n)),
+            DataType::U16 => VoxelData::U16(Voxels::deferred(n)),
+            DataType::I16 => VoxelData::I16(Voxels::deferred(n)),
+            DataType::F32 => VoxelData::F32(Voxels::deferred(n)),
+        };
+        check_spacing(&source, dims, spacing)?;
+        Ok(Volume {
+            dims,
+            spacing,
+            data,
+            source,
+            raw_file: None,
+            zarr: Some(level),
         })
     }
 
@@ -325,7 +361,7 @@ impl Volume {
             return raw::open(path, spec);
         }
         if zarr::is_zarr(path) {
-            return zarr::open(path, opts.level, opts.max_dim);
+            return zarr::open_deferring(path, opts.level, opts.max_dim, opts.defer_above);
         }
         if path.is_dir() && dicom::is_series_dir(path) {
             return dicom::open(path, opts.series.as_deref());
@@ -374,6 +410,21 @@ impl Volume {
         self.raw_file.as_ref().map(|(p, s)| (p.as_path(), s))
     }
 
+    /// False when the voxels are not in memory: a Zarr level larger than the memory budget
+    /// it was opened with ([`OpenOptions::defer_above`]), whose chunks a brick store decodes
+    /// on demand. Such a volume renders only with the brick engine through its store; what
+    /// samples the whole lattice (the march engine, `--whole`, the exact cull) refuses it.
+    #[must_use]
+    pub fn is_resident(&self) -> bool {
+        self.zarr.is_none()
+    }
+
+    /// The Zarr array a non-resident volume's chunks are decoded from.
+    #[must_use]
+    pub fn zarr_level(&self) -> Option<&std::sync::Arc<zarr::ZarrLevel>> {
+        self.zarr.as_ref()
+    }
+
     /// A second handle on a memory-mapped volume, sharing the map (no copy), its file
     /// included; `None` when the voxels are owned.
     #[must_use]
@@ -390,6 +441,7 @@ impl Volume {
             data,
             source: self.source.clone(),
             raw_file: self.raw_file.clone(),
+            zarr: self.zarr.clone(),
         })
     }
 
@@ -436,6 +488,20 @@ impl Volume {
         let i = self.index(x, y, z);
         with_voxels!(&self.data, v => v[i].to_f32())
     }
+}
+
+/// Rejects a spacing that is not finite and positive, or whose world extent overflows.
+fn check_spacing(source: &str, dims: [usize; 3], spacing: [f32; 3]) -> Result<(), VolumeError> {
+    // A finite spacing times the voxel count can still overflow f32: every camera and
+    // ray built on that extent would be NaN.
+    let extent_ok = (0..3).all(|a| ((dims[a].saturating_sub(1)) as f32 * spacing[a]).is_finite());
+    if !extent_ok || spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        return Err(VolumeError::BadSpacing {
+            file: source.to_string(),
+            spacing,
+        });
+    }
+    Ok(())
 }
 
 /// Multiplies out `dims`, rejecting zeros and overflow.

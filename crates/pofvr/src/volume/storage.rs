@@ -18,6 +18,11 @@ enum Repr<T: 'static> {
         offset: usize,
         len: usize,
     },
+    /// Voxels that are not in memory: a Zarr level larger than the memory budget, whose
+    /// chunks a brick store decodes on demand ([`Voxels::deferred`]).
+    Deferred {
+        len: usize,
+    },
     /// Memory someone else owns, valid while `_owner` lives ([`Voxels::borrowed`]).
     Borrowed {
         _owner: Arc<dyn Send + Sync>,
@@ -42,6 +47,21 @@ impl<T: Voxel> Voxels<T> {
         Voxels {
             repr: Repr::Owned(v),
         }
+    }
+
+    /// `len` voxels that are not held in memory: every path that samples the whole lattice
+    /// must check [`Voxels::is_resident`] first (the volume's brick store reads them).
+    #[must_use]
+    pub fn deferred(len: usize) -> Self {
+        Voxels {
+            repr: Repr::Deferred { len },
+        }
+    }
+
+    /// False for [`Voxels::deferred`] voxels.
+    #[must_use]
+    pub fn is_resident(&self) -> bool {
+        !matches!(self.repr, Repr::Deferred { .. })
     }
 
     /// Serves `len` voxels at byte `offset` of `map`, without copying when the offset is
@@ -94,11 +114,16 @@ impl<T: Voxel> Voxels<T> {
     }
 
     /// The voxels.
+    ///
+    /// # Panics
+    /// For [`Voxels::deferred`] voxels: a caller that samples the whole lattice must check
+    /// [`Voxels::is_resident`] and report an error (silent zeros would be a wrong image).
     #[inline]
     #[must_use]
     pub fn as_slice(&self) -> &[T] {
         match &self.repr {
             Repr::Owned(v) => v,
+            Repr::Deferred { len } => deferred_access(*len),
             Repr::Borrowed { data, .. } => data,
             Repr::Mapped { map, offset, len } => {
                 bytemuck::cast_slice(&map[*offset..*offset + *len * std::mem::size_of::<T>()])
@@ -112,7 +137,7 @@ impl<T: Voxel> Voxels<T> {
         match &self.repr {
             Repr::Owned(v) => v.len(),
             Repr::Borrowed { data, .. } => data.len(),
-            Repr::Mapped { len, .. } => *len,
+            Repr::Mapped { len, .. } | Repr::Deferred { len } => *len,
         }
     }
 
@@ -122,11 +147,12 @@ impl<T: Voxel> Voxels<T> {
         self.len() == 0
     }
 
-    /// A second handle on memory-mapped voxels, sharing the map (no copy); `None` for
-    /// owned or borrowed voxels.
+    /// A second handle on memory-mapped (or deferred) voxels, sharing the map (no copy);
+    /// `None` for owned or borrowed voxels.
     #[must_use]
     pub fn share(&self) -> Option<Self> {
         match &self.repr {
+            Repr::Deferred { len } => Some(Voxels::deferred(*len)),
             Repr::Mapped { map, offset, len } => Some(Voxels {
                 repr: Repr::Mapped {
                     map: Arc::clone(map),
@@ -155,4 +181,12 @@ impl<T: Voxel> Voxels<T> {
             let _ = unsafe { map.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) };
         }
     }
+}
+
+#[cold]
+#[inline(never)]
+fn deferred_access(len: usize) -> ! {
+    panic!(
+        "internal error: the whole lattice of a volume whose {len} voxels are decoded on demand (a Zarr level under --memory-budget) was sampled; this path must check Volume::is_resident"
+    )
 }

@@ -221,3 +221,76 @@ fn bad_series_are_clear_errors_naming_the_file_and_tag() {
     );
     expect(open(d.path()), &["2 series", "7.7"]);
 }
+
+/// The byte offset of `tag`'s header in a little-endian file.
+fn find_tag(bytes: &[u8], tag: dicom_core::Tag, vr: &[u8; 2]) -> usize {
+    let mut pat = Vec::new();
+    pat.extend(tag.group().to_le_bytes());
+    pat.extend(tag.element().to_le_bytes());
+    pat.extend(vr);
+    bytes
+        .windows(pat.len())
+        .position(|w| w == pat)
+        .expect("the tag in the file")
+}
+
+#[test]
+fn lengths_past_the_end_and_damaged_rle_are_errors_not_allocations() {
+    let v = body();
+    // An element claiming 2 GB in a file of a few kilobytes: refused before dicom-rs
+    // reserves the claim.
+    let d = tempfile::tempdir().unwrap();
+    write_series(&v, d.path(), &SeriesOptions::default()).unwrap();
+    let f = d.path().join("slice_0003.dcm");
+    let mut bytes = std::fs::read(&f).unwrap();
+    let at = find_tag(&bytes, tags::PIXEL_DATA, b"OW");
+    bytes[at + 8..at + 12].copy_from_slice(&0x7FFF_FFF0u32.to_le_bytes());
+    std::fs::write(&f, &bytes).unwrap();
+    expect(
+        open(d.path()),
+        &["slice_0003.dcm", "PixelData", "claims 2147483632 bytes"],
+    );
+    // Rows and columns claiming more pixels than the file holds.
+    let d = tempfile::tempdir().unwrap();
+    write_series(&v, d.path(), &SeriesOptions::default()).unwrap();
+    edit(
+        &d.path().join("slice_0002.dcm"),
+        tags::ROWS,
+        VR::US,
+        PrimitiveValue::from(60000u16),
+    );
+    expect(
+        open(d.path()),
+        &["slice_0002.dcm", "PixelData", "do not fit"],
+    );
+    // RLE data cut short, and an RLE header naming segments past the data.
+    let rle = SeriesOptions {
+        rle: true,
+        ..SeriesOptions::default()
+    };
+    let d = tempfile::tempdir().unwrap();
+    write_series(&v, d.path(), &rle).unwrap();
+    let f = d.path().join("slice_0004.dcm");
+    let bytes = std::fs::read(&f).unwrap();
+    std::fs::write(&f, &bytes[..bytes.len() - 200]).unwrap();
+    expect(open(d.path()), &["slice_0004.dcm"]);
+    let d = tempfile::tempdir().unwrap();
+    write_series(&v, d.path(), &rle).unwrap();
+    let f = d.path().join("slice_0005.dcm");
+    let mut bytes = std::fs::read(&f).unwrap();
+    // The first fragment: the item after the (empty) offset table item.
+    let px = find_tag(&bytes, tags::PIXEL_DATA, b"OB");
+    let frag = px + 12 + 8 + 8;
+    assert_eq!(bytes[frag], 2, "two RLE segments");
+    bytes[frag + 8..frag + 12].copy_from_slice(&60000u32.to_le_bytes());
+    std::fs::write(&f, &bytes).unwrap();
+    expect(
+        open(d.path()),
+        &[
+            "slice_0005.dcm",
+            "PixelData",
+            "RLE data do not decode",
+            "segment",
+        ],
+    );
+}

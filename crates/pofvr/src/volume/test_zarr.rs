@@ -169,3 +169,45 @@ fn bad_stores_are_clear_errors() {
         "{e}"
     );
 }
+
+#[test]
+fn chunk_sizes_are_checked_before_anything_is_sized_by_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let v = Phantom::Body.generate_dims([70, 20, 10]);
+    let out = dir.path().join("z.zarr");
+    write(&v, &out);
+    // A zstd frame claiming another size than the chunk's.
+    let chunk = out.join("0/c/0/0/1");
+    let mut bytes = std::fs::read(&chunk).unwrap();
+    let want = (CHUNK * CHUNK * CHUNK * 2) as u64;
+    assert_eq!(super::zarr::zstd_content_size(&bytes), Some(want));
+    let at = bytes
+        .windows(4)
+        .position(|w| w == (want as u32).to_le_bytes())
+        .expect("the frame content size");
+    bytes[at + 2] ^= 0x40;
+    std::fs::write(&chunk, &bytes).unwrap();
+    let e = Volume::open(&out, None).unwrap_err().to_string();
+    assert!(
+        e.contains("0/c/0/0/1") && e.contains("zstd frame claims"),
+        "{e}"
+    );
+    // An uncompressed array whose chunk file is not one chunk long, and one without its
+    // chunks at all (a shape of a billion voxels over no data is refused, not allocated).
+    let raw = dir.path().join("raw.zarr");
+    std::fs::create_dir_all(raw.join("c/0/0")).unwrap();
+    let meta = |shape: &str| {
+        format!(
+            r#"{{"zarr_format":3,"node_type":"array","shape":{shape},"data_type":"uint8","chunk_grid":{{"name":"regular","configuration":{{"chunk_shape":[2,2,2]}}}},"chunk_key_encoding":{{"name":"default","configuration":{{"separator":"/"}}}},"fill_value":0,"codecs":[{{"name":"bytes"}}]}}"#
+        )
+    };
+    std::fs::write(raw.join("zarr.json"), meta("[2,2,2]")).unwrap();
+    std::fs::write(raw.join("c/0/0/0"), [1u8; 7]).unwrap();
+    let e = Volume::open(&raw, None).unwrap_err().to_string();
+    assert!(e.contains("c/0/0/0") && e.contains("the file has 7"), "{e}");
+    std::fs::write(raw.join("c/0/0/0"), [1u8; 8]).unwrap();
+    assert_eq!(Volume::open(&raw, None).unwrap().value(1, 1, 1), 1.0);
+    std::fs::write(raw.join("zarr.json"), meta("[1000,1000,1000]")).unwrap();
+    let e = Volume::open(&raw, None).unwrap_err().to_string();
+    assert!(e.contains("missing"), "{e}");
+}

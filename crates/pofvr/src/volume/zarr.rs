@@ -10,7 +10,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 use zarrs::array::codec::ZstdCodec;
-use zarrs::array::{data_type, Array, ArrayBuilder, Element, ElementOwned};
+use zarrs::array::{
+    data_type, Array, ArrayBuilder, ArrayToBytesCodecTraits, Element, ElementOwned,
+};
 use zarrs::filesystem::FilesystemStore;
 use zarrs::group::GroupBuilder;
 
@@ -113,10 +115,25 @@ pub fn open(
     level: Option<usize>,
     max_dim: Option<usize>,
 ) -> Result<Volume, VolumeError> {
+    open_deferring(path, level, max_dim, None)
+}
+
+/// [`open`], except that a level of more than `defer_above` bytes is not decoded: the
+/// volume's voxels are then not resident ([`Volume::is_resident`]) and a brick store
+/// decodes its chunks on demand ([`Volume::zarr_level`]).
+///
+/// # Errors
+/// As [`open`].
+pub fn open_deferring(
+    path: &Path,
+    level: Option<usize>,
+    max_dim: Option<usize>,
+    defer_above: Option<u64>,
+) -> Result<Volume, VolumeError> {
     let meta = read_json(path)?;
     let file = path.join("zarr.json");
     match meta["node_type"].as_str() {
-        Some("array") => open_array(path, [1.0; 3]),
+        Some("array") => open_array(path, [1.0; 3], defer_above),
         Some("group") => {
             let levels = levels(path, &meta)?;
             let pick = match level {
@@ -152,7 +169,7 @@ pub fn open(
                 }
             };
             let l = &levels[pick];
-            open_array(&path.join(&l.path), l.scale)
+            open_array(&path.join(&l.path), l.scale, defer_above)
         }
         other => Err(VolumeError::header(
             &file,
@@ -162,69 +179,396 @@ pub fn open(
     }
 }
 
-fn open_array(path: &Path, spacing: [f32; 3]) -> Result<Volume, VolumeError> {
-    let file = path.join("zarr.json");
-    let meta = read_json(path)?;
-    let dtype = match meta["data_type"].as_str() {
-        Some("uint8") => DataType::U8,
-        Some("uint16") => DataType::U16,
-        Some("int16") => DataType::I16,
-        Some("float32") => DataType::F32,
-        other => {
+fn open_array(
+    path: &Path,
+    spacing: [f32; 3],
+    defer_above: Option<u64>,
+) -> Result<Volume, VolumeError> {
+    let level = ZarrLevel::open(path)?;
+    let source = path.display().to_string();
+    let bytes = level.dims.iter().product::<usize>() as u64 * level.dtype.size() as u64;
+    if defer_above.is_some_and(|b| bytes > b) {
+        // Larger than the budget: the chunks are decoded on demand by the brick store.
+        return Volume::deferred(level.dims, spacing, level.dtype, source, Arc::new(level));
+    }
+    let data = match level.dtype {
+        DataType::U8 => VoxelData::U8(Voxels::owned(read_chunks::<u8>(&level)?)),
+        DataType::U16 => VoxelData::U16(Voxels::owned(read_chunks::<u16>(&level)?)),
+        DataType::I16 => VoxelData::I16(Voxels::owned(read_chunks::<i16>(&level)?)),
+        DataType::F32 => VoxelData::F32(Voxels::owned(read_chunks::<f32>(&level)?)),
+    };
+    Volume::new(level.dims, spacing, data, source)
+}
+
+/// One 3-D Zarr array opened for chunk reads: what the whole-level decode reads, and what
+/// a brick store decodes chunks from on demand when the level does not fit its memory
+/// budget (`crate::store`). Chunk indices and shapes are given x, y, z.
+pub struct ZarrLevel {
+    array: Array<FilesystemStore>,
+    path: std::path::PathBuf,
+    dims: [usize; 3],
+    dtype: DataType,
+    /// Chunk shape, x, y, z (every chunk has it: edge chunks overhang the array).
+    chunk: [usize; 3],
+    /// Chunks per axis, x, y, z.
+    counts: [usize; 3],
+    /// Leading axes of length 1 (OME's `t`, `c`).
+    lead: usize,
+    /// True when a codec other than `bytes` and `transpose` is listed: the encoded size
+    /// of a chunk then says nothing about its decoded size.
+    compressed: bool,
+    /// True when the one compressor is zstd: each chunk is one zstd frame of the chunk.
+    zstd_only: bool,
+}
+
+/// The decoded size a zstd frame's header claims (`Frame_Content_Size`, RFC 8878 3.1.1.1),
+/// when `data` starts with a zstd frame that states it.
+pub(crate) fn zstd_content_size(data: &[u8]) -> Option<u64> {
+    if data.len() < 5 || data[..4] != [0x28, 0xB5, 0x2F, 0xFD] {
+        return None;
+    }
+    let fhd = data[4];
+    let single = fhd & 0x20 != 0;
+    let fcs_len = match fhd >> 6 {
+        0 if single => 1,
+        0 => return None,
+        1 => 2,
+        2 => 4,
+        _ => 8,
+    };
+    let dict_len = [0, 1, 2, 4][usize::from(fhd & 3)];
+    let at = 5 + usize::from(!single) + dict_len;
+    let field = data.get(at..at + fcs_len)?;
+    let mut v = [0u8; 8];
+    v[..fcs_len].copy_from_slice(field);
+    let n = u64::from_le_bytes(v);
+    Some(if fcs_len == 2 { n + 256 } else { n })
+}
+
+impl std::fmt::Debug for ZarrLevel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ZarrLevel")
+            .field("path", &self.path)
+            .field("dims", &self.dims)
+            .field("dtype", &self.dtype)
+            .field("chunk", &self.chunk)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ZarrLevel {
+    /// Opens the array at `path`, checking its metadata: a supported data type, 3-D after
+    /// dropping leading axes of length 1, a regular chunk grid.
+    ///
+    /// # Errors
+    /// A [`VolumeError`] naming the `zarr.json` and the field.
+    pub fn open(path: &Path) -> Result<Self, VolumeError> {
+        let file = path.join("zarr.json");
+        let meta = read_json(path)?;
+        let dtype = match meta["data_type"].as_str() {
+            Some("uint8") => DataType::U8,
+            Some("uint16") => DataType::U16,
+            Some("int16") => DataType::I16,
+            Some("float32") => DataType::F32,
+            other => {
+                return Err(VolumeError::header(
+                    &file,
+                    "data_type",
+                    format!("{other:?}: uint8, uint16, int16 and float32 are read"),
+                ))
+            }
+        };
+        let store = Arc::new(FilesystemStore::new(path).map_err(|e| decode(path, e))?);
+        let array = Array::open(store, "/").map_err(|e| {
+            VolumeError::header(
+                &file,
+                "zarr.json",
+                format!("not a readable Zarr v3 array: {e}"),
+            )
+        })?;
+        let shape = array.shape().to_vec();
+        let n = shape.len();
+        if n < 3 || (0..n - 3).any(|a| shape[a] != 1) {
             return Err(VolumeError::header(
                 &file,
-                "data_type",
-                format!("{other:?}: uint8, uint16, int16 and float32 are read"),
-            ))
+                "shape",
+                format!("{shape:?}: a 3-D array (leading axes of length 1 allowed) is read"),
+            ));
         }
-    };
-    let store = Arc::new(FilesystemStore::new(path).map_err(|e| decode(path, e))?);
-    let array = Array::open(store, "/").map_err(|e| {
-        VolumeError::header(
-            &file,
-            "zarr.json",
-            format!("not a readable Zarr v3 array: {e}"),
-        )
-    })?;
-    let shape = array.shape().to_vec();
-    let n = shape.len();
-    if n < 3 || (0..n - 3).any(|a| shape[a] != 1) {
-        return Err(VolumeError::header(
-            &file,
-            "shape",
-            format!("{shape:?}: a 3-D array (leading axes of length 1 allowed) is read"),
-        ));
+        let to_usize = |v: u64| usize::try_from(v).unwrap_or(usize::MAX);
+        let dims = [
+            to_usize(shape[n - 1]),
+            to_usize(shape[n - 2]),
+            to_usize(shape[n - 3]),
+        ];
+        super::checked_voxel_count(&path.display().to_string(), dims)?;
+        let grid = array.chunk_grid_shape().to_vec();
+        let bad_grid = |why: String| VolumeError::header(&file, "chunk_grid", why);
+        let first = array
+            .chunk_shape_usize(&vec![0u64; n])
+            .map_err(|e| bad_grid(e.to_string()))?;
+        let last_idx: Vec<u64> = grid.iter().map(|g| g.saturating_sub(1)).collect();
+        let last = array
+            .chunk_shape_usize(&last_idx)
+            .map_err(|e| bad_grid(e.to_string()))?;
+        if first != last {
+            return Err(bad_grid(format!(
+                "chunks of shape {first:?} and {last:?}: a regular chunk grid is read"
+            )));
+        }
+        let chunk = [first[n - 1], first[n - 2], first[n - 3]];
+        let counts = [
+            to_usize(grid[n - 1]),
+            to_usize(grid[n - 2]),
+            to_usize(grid[n - 3]),
+        ];
+        // The grid must cover the array with chunks that are not absurdly large: a chunk is
+        // decoded whole, so its size is an allocation the file chooses.
+        let covers = (0..3).all(|a| chunk[a] > 0 && chunk[a].saturating_mul(counts[a]) >= dims[a]);
+        let chunk_bytes = chunk
+            .iter()
+            .try_fold(dtype.size(), |acc, c| acc.checked_mul(*c))
+            .unwrap_or(usize::MAX);
+        if !covers || chunk_bytes > MAX_CHUNK_BYTES {
+            return Err(bad_grid(format!(
+                "chunk shape {first:?} for an array of shape {shape:?}: chunks must cover the array and hold at most {MAX_CHUNK_BYTES} bytes"
+            )));
+        }
+        let compressed = meta["codecs"].as_array().is_none_or(|c| {
+            c.iter()
+                .any(|c| !matches!(c["name"].as_str(), Some("bytes" | "transpose")))
+        });
+        let zstd_only = meta["codecs"].as_array().is_some_and(|c| {
+            let names: Vec<_> = c.iter().filter_map(|c| c["name"].as_str()).collect();
+            names.contains(&"zstd")
+                && names
+                    .iter()
+                    .all(|n| matches!(*n, "bytes" | "transpose" | "zstd"))
+                && names.iter().filter(|n| **n == "zstd").count() == 1
+        });
+        let level = ZarrLevel {
+            array,
+            path: path.to_path_buf(),
+            dims,
+            dtype,
+            chunk,
+            counts,
+            lead: n - 3,
+            compressed,
+            zstd_only,
+        };
+        level.check_chunk_files()?;
+        Ok(level)
     }
-    let dims = [
-        shape[n - 1] as usize,
-        shape[n - 2] as usize,
-        shape[n - 3] as usize,
-    ];
-    let source = path.display().to_string();
-    super::checked_voxel_count(&source, dims)?;
-    let data = match dtype {
-        DataType::U8 => VoxelData::U8(Voxels::owned(read_chunks::<u8>(&array, path, dims)?)),
-        DataType::U16 => VoxelData::U16(Voxels::owned(read_chunks::<u16>(&array, path, dims)?)),
-        DataType::I16 => VoxelData::I16(Voxels::owned(read_chunks::<i16>(&array, path, dims)?)),
-        DataType::F32 => VoxelData::F32(Voxels::owned(read_chunks::<f32>(&array, path, dims)?)),
-    };
-    Volume::new(dims, spacing, data, source)
+
+    /// Every chunk's file is present and, uncompressed, exactly one chunk long: checked
+    /// before anything is sized by the array's shape (a `zarr.json` claiming a huge array
+    /// over a few chunks fails here, not in an allocation).
+    fn check_chunk_files(&self) -> Result<(), VolumeError> {
+        let bytes = self.chunk_bytes();
+        for kz in 0..self.counts[2] {
+            for ky in 0..self.counts[1] {
+                for kx in 0..self.counts[0] {
+                    let (idx, file) = self.chunk_file([kx, ky, kz]);
+                    let len = match std::fs::metadata(&file) {
+                        Ok(m) if m.is_file() => m.len(),
+                        _ => {
+                            return Err(decode(
+                                &file,
+                                format!("chunk {idx:?} is missing from the store"),
+                            ))
+                        }
+                    };
+                    self.check_encoded_len(&file, len)?;
+                }
+            }
+        }
+        debug_assert!(bytes > 0);
+        Ok(())
+    }
+
+    /// An uncompressed chunk holds exactly its voxels.
+    fn check_encoded_len(&self, file: &Path, len: u64) -> Result<(), VolumeError> {
+        let bytes = self.chunk_bytes() as u64;
+        if !self.compressed && len != bytes {
+            return Err(decode(
+                file,
+                format!(
+                    "an uncompressed chunk of {:?} {} voxels is {bytes} bytes, the file has {len}",
+                    self.chunk, self.dtype
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn chunk_bytes(&self) -> usize {
+        self.chunk.iter().product::<usize>() * self.dtype.size()
+    }
+
+    /// The zarrs indices (leading axes, z, y, x) of chunk `c` and its file.
+    fn chunk_file(&self, c: [usize; 3]) -> (Vec<u64>, std::path::PathBuf) {
+        let mut idx = vec![0u64; self.lead];
+        idx.extend([c[2] as u64, c[1] as u64, c[0] as u64]);
+        let key = self.array.chunk_key(&idx);
+        let file = self.path.join(key.as_str());
+        (idx, file)
+    }
+
+    /// The array's folder.
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Voxels along x, y, z.
+    #[must_use]
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// The stored type.
+    #[must_use]
+    pub fn data_type(&self) -> DataType {
+        self.dtype
+    }
+
+    /// The chunk shape along x, y, z.
+    #[must_use]
+    pub fn chunk_shape(&self) -> [usize; 3] {
+        self.chunk
+    }
+
+    /// Chunks along x, y, z.
+    #[must_use]
+    pub fn chunk_counts(&self) -> [usize; 3] {
+        self.counts
+    }
+
+    /// Decodes chunk `c` (x, y, z chunk indices) into its voxels, x fastest, in the
+    /// chunk's full shape; with the bytes read from the store for it (compressed).
+    ///
+    /// # Errors
+    /// [`VolumeError::Decode`] naming the chunk's file when it is missing, cannot be
+    /// decoded, or (float data) holds a NaN or Inf.
+    pub fn read_chunk(&self, c: [usize; 3]) -> Result<(VoxelData, u64), VolumeError> {
+        Ok(match self.dtype {
+            DataType::U8 => {
+                let (v, b) = self.chunk::<u8>(c)?;
+                (VoxelData::U8(Voxels::owned(v)), b)
+            }
+            DataType::U16 => {
+                let (v, b) = self.chunk::<u16>(c)?;
+                (VoxelData::U16(Voxels::owned(v)), b)
+            }
+            DataType::I16 => {
+                let (v, b) = self.chunk::<i16>(c)?;
+                (VoxelData::I16(Voxels::owned(v)), b)
+            }
+            DataType::F32 => {
+                let (v, b) = self.chunk::<f32>(c)?;
+                (VoxelData::F32(Voxels::owned(v)), b)
+            }
+        })
+    }
+
+    /// Chunk `c` as `T` (the array's own type) and its encoded size.
+    fn chunk<T: Voxel + ElementOwned>(&self, c: [usize; 3]) -> Result<(Vec<T>, u64), VolumeError> {
+        let (idx, file) = self.chunk_file(c);
+        let encoded = self
+            .array
+            .retrieve_encoded_chunk(&idx)
+            .map_err(|e| decode(&file, e))?
+            .ok_or_else(|| decode(&file, format!("chunk {idx:?} is missing from the store")))?;
+        let bytes = encoded.len() as u64;
+        // The file may have changed since the store was opened.
+        self.check_encoded_len(&file, bytes)?;
+        // zstd sizes its output by the frame's own claim: a damaged one must not decide an
+        // allocation. A chunk decodes to exactly its voxels.
+        if let Some(claim) = zstd_content_size(&encoded) {
+            let want = self.chunk_bytes() as u64;
+            if self.zstd_only && claim != want {
+                return Err(decode(
+                    &file,
+                    format!("the zstd frame claims {claim} bytes, the chunk holds {want}"),
+                ));
+            }
+        }
+        let shape = self.array.chunk_shape(&idx).map_err(|e| decode(&file, e))?;
+        let decoded = self
+            .array
+            .codecs()
+            .decode(
+                std::borrow::Cow::Owned(encoded),
+                &shape,
+                self.array.data_type(),
+                self.array.fill_value(),
+                &zarrs::array::CodecOptions::default(),
+            )
+            .map_err(|e| decode(&file, e))?;
+        let shape_u64: Vec<u64> = shape.iter().map(|s| s.get()).collect();
+        let v = <Vec<T> as zarrs::array::FromArrayBytes>::from_array_bytes(
+            decoded.into_owned(),
+            &shape_u64,
+            self.array.data_type(),
+        )
+        .map_err(|e| decode(&file, e))?;
+        if v.len() != self.chunk.iter().product::<usize>() {
+            return Err(decode(
+                &file,
+                format!(
+                    "decoded {} voxels, the chunk holds {:?}",
+                    v.len(),
+                    self.chunk
+                ),
+            ));
+        }
+        if T::TYPE == DataType::F32 {
+            self.check_finite(&v, c, &file)?;
+        }
+        Ok((v, bytes))
+    }
+
+    /// Float voxels inside the array are finite (an edge chunk's overhang is not part of
+    /// the volume and may hold a NaN fill value).
+    fn check_finite<T: Voxel>(
+        &self,
+        v: &[T],
+        c: [usize; 3],
+        file: &Path,
+    ) -> Result<(), VolumeError> {
+        let [cx, cy, cz] = self.chunk;
+        let n: [usize; 3] =
+            std::array::from_fn(|a| self.chunk[a].min(self.dims[a] - c[a] * self.chunk[a]));
+        for z in 0..n[2].min(cz) {
+            for y in 0..n[1].min(cy) {
+                let row = &v[(z * cy + y) * cx..][..n[0]];
+                if let Some(x) = row.iter().position(|x| !x.to_f32().is_finite()) {
+                    let at = [c[0] * cx + x, c[1] * cy + y, c[2] * cz + z];
+                    return Err(decode(
+                        file,
+                        format!(
+                            "non-finite value {} at voxel {at:?}: NaN/Inf are rejected",
+                            row[x].to_f32()
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
 }
+
+/// The largest decoded chunk read (1 GiB): chunks are decoded whole.
+const MAX_CHUNK_BYTES: usize = 1 << 30;
 
 /// Decodes every chunk (in parallel) into one x-fastest buffer, failing on an absent one.
 fn read_chunks<T: Voxel + ElementOwned + Default>(
-    array: &Array<FilesystemStore>,
-    path: &Path,
-    dims: [usize; 3],
+    level: &ZarrLevel,
 ) -> Result<Vec<T>, VolumeError> {
     use rayon::prelude::*;
-    let n = array.shape().len();
-    let grid = array.chunk_grid_shape().to_vec();
-    let lead = vec![0u64; n - 3];
-    let chunk = array
-        .chunk_shape_usize(&vec![0u64; n])
-        .map_err(|e| decode(path, e))?;
-    let (cz, cy, cx) = (chunk[n - 3], chunk[n - 2], chunk[n - 1]);
+    let dims = level.dims;
+    let [cx, cy, cz] = level.chunk;
     let plane = dims[0] * dims[1];
     let mut out = vec![T::default(); plane * dims[2]];
     // One z-row of chunks at a time, so each task owns a disjoint slab of the output.
@@ -232,20 +576,9 @@ fn read_chunks<T: Voxel + ElementOwned + Default>(
     out.par_chunks_mut(per_row)
         .enumerate()
         .try_for_each(|(kz, slab)| {
-            for ky in 0..grid[n - 2] as usize {
-                for kx in 0..grid[n - 1] as usize {
-                    let mut idx = lead.clone();
-                    idx.extend([kz as u64, ky as u64, kx as u64]);
-                    let key = array.chunk_key(&idx);
-                    let data: Vec<T> = array
-                        .retrieve_chunk_if_exists(&idx)
-                        .map_err(|e| decode(&path.join(key.as_str()), e))?
-                        .ok_or_else(|| {
-                            decode(
-                                &path.join(key.as_str()),
-                                format!("chunk {idx:?} is missing from the store"),
-                            )
-                        })?;
+            for ky in 0..level.counts[1] {
+                for kx in 0..level.counts[0] {
+                    let (data, _) = level.chunk::<T>([kx, ky, kz])?;
                     for z in 0..cz.min(dims[2] - kz * cz) {
                         for y in 0..cy.min(dims[1] - ky * cy) {
                             let w = cx.min(dims[0] - kx * cx);

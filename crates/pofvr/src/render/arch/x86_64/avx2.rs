@@ -354,12 +354,22 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool, cons
                     continue;
                 }
             }
-            if first & OCCUPIED == 0
-                && (1..count as usize).fold(first, |o, j| o | leap(j)) & OCCUPIED == 0
-            {
-                // Eight samples in empty cells: no corners to gather.
-                sk.skipped += count as u64;
-                k += 8;
+            if first & OCCUPIED == 0 {
+                // The lanes in occupied cells, as bits.
+                let occupied =
+                    (1..count as usize).fold(0u32, |m, j| m | (u32::from(leap(j) >> 7) << j));
+                if occupied == 0 {
+                    // Eight samples in empty cells: no corners to gather.
+                    sk.skipped += count as u64;
+                    k += 8;
+                    continue;
+                }
+                // The group starts again at its first sample in an occupied cell: the
+                // samples before it are in empty cells, and the eight gathered from there
+                // reach further into the occupied ones.
+                let j = occupied.trailing_zeros() as i32;
+                sk.skipped += j as u64;
+                k += j;
                 continue;
             }
         }

@@ -1,0 +1,355 @@
+//! Zarr levels under a memory budget: boxes assembled from chunks equal the volume's, the
+//! streamed grid equals the measured one, compressed bytes are counted, and budgeted frames
+//! equal the frames of the decoded level bit for bit, chunks aligned with bricks or not.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use zarrs::array::codec::ZstdCodec;
+use zarrs::array::ArrayBuilder;
+use zarrs::filesystem::FilesystemStore;
+
+use super::*;
+use crate::brick::{BrickCopy, BrickGrid};
+use crate::render::{families, Camera, Projection};
+use crate::scene::{Cull, Engine, FrameRequest, Predict, Scene};
+use crate::volume::phantom::Phantom;
+use crate::volume::{OpenOptions, Volume, VoxelData};
+use crate::with_voxels;
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("pofvr-zstore-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `volume` (i16) written as one Zarr v3 array at `dir/name` with chunks of `chunk` (x, y, z)
+/// voxels, zstd-compressed.
+fn write_array(volume: &Volume, dir: &Path, name: &str, chunk: [u64; 3]) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::create_dir_all(&path).unwrap();
+    let store = Arc::new(FilesystemStore::new(&path).unwrap());
+    let d = volume.dims();
+    let array = ArrayBuilder::new(
+        vec![d[2] as u64, d[1] as u64, d[0] as u64],
+        vec![chunk[2], chunk[1], chunk[0]],
+        zarrs::array::data_type::int16(),
+        zarrs::array::FillValue::new(vec![0u8; 2]),
+    )
+    .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(1, false))])
+    .build(store, "/")
+    .unwrap();
+    array.store_metadata().unwrap();
+    let VoxelData::I16(v) = volume.data() else {
+        panic!("an i16 volume")
+    };
+    let all = zarrs::array::CodecOptions::default().with_store_empty_chunks(true);
+    array
+        .store_array_subset_opt(
+            &[0..d[2] as u64, 0..d[1] as u64, 0..d[0] as u64],
+            v.as_slice(),
+            &all,
+        )
+        .unwrap();
+    path
+}
+
+fn deferred(path: &Path) -> Volume {
+    let v = Volume::open_with(
+        path,
+        &OpenOptions {
+            defer_above: Some(1),
+            ..OpenOptions::default()
+        },
+    )
+    .unwrap();
+    assert!(!v.is_resident());
+    v
+}
+
+fn values(d: &VoxelData) -> Vec<f32> {
+    with_voxels!(d, v => v.iter().map(|x| crate::volume::Voxel::to_f32(*x)).collect())
+}
+
+/// Bytes of every file under `dir` but the metadata.
+fn chunk_file_bytes(dir: &Path) -> u64 {
+    let mut total = 0;
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            total += chunk_file_bytes(&p);
+        } else if p.file_name().is_some_and(|n| n != "zarr.json") {
+            total += std::fs::metadata(&p).unwrap().len();
+        }
+    }
+    total
+}
+
+fn body() -> Volume {
+    Phantom::Body.generate_dims([45, 38, 52])
+}
+
+#[test]
+fn boxes_from_chunks_equal_the_volumes_boxes_and_count_compressed_bytes() {
+    let vol = body();
+    let dir = tmp("boxes");
+    for (i, chunk) in [[16, 16, 16], [13, 9, 11], [64, 64, 64]]
+        .into_iter()
+        .enumerate()
+    {
+        let path = write_array(&vol, &dir, &format!("a{i}"), chunk);
+        let opened = deferred(&path);
+        assert_eq!(opened.dims(), vol.dims());
+        let src = BrickSource::of(&opened).unwrap();
+        assert_eq!(src.kind(), "zarr chunks");
+        assert!(src.is_file());
+        // No chunk cached: each box reads every chunk it meets, so the whole volume as one
+        // box reads every chunk file once.
+        let d = vol.dims();
+        let (whole, bytes) = src.read_box_counted(&opened, [0; 3], d).unwrap();
+        assert_eq!(values(&whole), values(vol.data()));
+        assert_eq!(bytes, chunk_file_bytes(&path), "chunks {chunk:?}");
+        // Room for two chunks: boxes evict as they go.
+        let z = src.zarr().unwrap();
+        z.set_chunk_budget(2 * chunk.iter().product::<u64>() * 2);
+        for b in [8, 5] {
+            let grid = BrickGrid::from_volume(&vol, b).unwrap();
+            for id in grid.ids() {
+                let (o, n) = BrickCopy::apron_box(&grid, id);
+                let read = src.read_box(&opened, o, n).unwrap();
+                let mem = BrickSource::Memory.read_box(&vol, o, n).unwrap();
+                assert_eq!(
+                    values(&read),
+                    values(&mem),
+                    "brick {id:?}, chunks {chunk:?}"
+                );
+            }
+        }
+        assert!(z.chunks_decoded() > 0);
+        if chunk != [64, 64, 64] {
+            assert!(z.chunk_evictions() > 0, "chunks {chunk:?}");
+        }
+        // A read that meets only cached chunks reads no bytes.
+        let src = BrickSource::of(&opened).unwrap();
+        let z = src.zarr().unwrap();
+        z.set_chunk_budget(1 << 30);
+        let one = src
+            .read_box_counted(&opened, [1, 2, 3], [4, 4, 4])
+            .unwrap()
+            .1;
+        assert!(one > 0);
+        assert_eq!(
+            src.read_box_counted(&opened, [1, 2, 3], [4, 4, 4])
+                .unwrap()
+                .1,
+            0
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn the_streamed_grid_of_a_deferred_level_has_the_decoded_grids_ranges() {
+    let vol = body();
+    let dir = tmp("grid");
+    let path = write_array(&vol, &dir, "a", [13, 9, 11]);
+    let opened = deferred(&path);
+    for b in [8, 16, 5] {
+        let want = BrickGrid::from_volume(&vol, b).unwrap();
+        for budget in [Some(4096), Some(1 << 20), None] {
+            let got = grid_for(&opened, b, budget).unwrap();
+            assert_eq!(want.ranges(), got.ranges(), "brick {b}, budget {budget:?}");
+        }
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+fn camera(v: &Volume, az: f64, size: u32) -> Camera {
+    Camera::orbit(v, az, 25.0, size, size, Projection::Perspective)
+}
+
+#[test]
+fn budgeted_zarr_frames_equal_decoded_frames_bit_for_bit() {
+    let vol = body();
+    let tf = families::for_phantom(Phantom::Body);
+    let dir = tmp("frames");
+    // Chunks aligned with 8³ bricks (16³) and not aligned with them (13×9×11).
+    for (i, chunk) in [[16, 16, 16], [13, 9, 11]].into_iter().enumerate() {
+        let path = write_array(&vol, &dir, &format!("a{i}"), chunk);
+        let plain = Scene::builder(Volume::open(&path, None).unwrap(), tf.clone())
+            .brick_size(8)
+            .build()
+            .unwrap();
+        assert!(plain.volume().is_resident());
+        // A tenth of the volume: the bricks of one frame do not fit, nor its chunks.
+        let budget = volume_bytes(&vol) / 10;
+        let opened = Volume::open_with(
+            &path,
+            &OpenOptions {
+                defer_above: Some(budget),
+                ..OpenOptions::default()
+            },
+        )
+        .unwrap();
+        assert!(!opened.is_resident());
+        let held = Scene::builder(opened, tf.clone())
+            .brick_size(8)
+            .memory_budget(Some(budget))
+            .build()
+            .unwrap();
+        assert_eq!(held.grid().ranges(), plain.grid().ranges());
+        assert_eq!(held.store().map(|s| s.source().kind()), Some("zarr chunks"));
+        let cam = camera(&vol, 30.0, 48);
+        let base = FrameRequest::new(&cam);
+        for ranks in [1, 3] {
+            for cull in [
+                Cull::None,
+                Cull::Verified(Predict::Proxy),
+                Cull::Verified(Predict::Nothing),
+            ] {
+                let what = format!("{:?} with {ranks} ranks, chunks {chunk:?}", cull.mode());
+                let want = plain
+                    .render(
+                        &base
+                            .clone()
+                            .engine(Engine::Bricks)
+                            .cull(cull)
+                            .ranks(ranks)
+                            .threshold(0.9),
+                    )
+                    .unwrap();
+                let got = held
+                    .render(&base.clone().cull(cull).ranks(ranks).threshold(0.9))
+                    .unwrap();
+                assert!(
+                    got.image.pixels() == want.image.pixels(),
+                    "pixels differ: {what}"
+                );
+                assert_eq!(got.stats.engine, "bricks", "{what}");
+                let rendered: usize = got.stats.ranks.iter().map(|r| r.bricks_rendered).sum();
+                assert_eq!(
+                    (got.stats.bricks_read + got.stats.cache_hits) as usize,
+                    rendered,
+                    "{what}"
+                );
+                assert!(got.stats.cache_peak_bytes <= budget, "{what}");
+            }
+        }
+        let s = held.store().unwrap();
+        assert!(s.summary().evictions > 0);
+        let z = s.source().zarr().unwrap();
+        assert_eq!(z.chunk_budget(), budget / 2);
+        assert!(z.chunks_decoded() > 0);
+        // The compressed bytes read are counted, not the decoded ones.
+        assert!(s.summary().bytes_read > 0);
+        assert!(s.summary().bytes_read <= chunk_file_bytes(&path) * 50);
+        // What samples the whole lattice is refused with a message, not zeros.
+        for e in [
+            held.render(&base.clone().cull(Cull::Exact)).map(|_| ()),
+            held.render_reference(&base).map(|_| ()),
+            held.render(&base.clone().engine(Engine::March)).map(|_| ()),
+        ] {
+            let e = e.expect_err("needs the whole lattice").to_string();
+            assert!(e.contains("whole") && e.contains("budget"), "{e}");
+        }
+        let e = held
+            .build_pofs(&crate::scene::PofBuild::default())
+            .expect_err("a POF build samples the volume")
+            .to_string();
+        assert!(e.contains("POF build"), "{e}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_chunk_removed_after_opening_is_an_error_naming_it() {
+    let vol = body();
+    let dir = tmp("gone");
+    let path = write_array(&vol, &dir, "a", [16, 16, 16]);
+    let opened = deferred(&path);
+    let src = BrickSource::of(&opened).unwrap();
+    let chunk = path.join("c/1/1/1");
+    assert!(chunk.is_file());
+    std::fs::remove_file(&chunk).unwrap();
+    let e = src
+        .read_box(&opened, [10, 10, 10], [10, 10, 10])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("c/1/1/1") && e.contains("missing"), "{e}");
+    std::fs::write(&chunk, b"not zstd").unwrap();
+    let e = src
+        .read_box(&opened, [10, 10, 10], [10, 10, 10])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("c/1/1/1"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn distributed_ranks_read_only_their_own_bricks_from_the_chunks() {
+    use crate::comm::LocalCommunicator;
+    use crate::distribute::setup::DistributedRank;
+    use crate::distribute::Curve;
+    use crate::frame::{FrameOptions, RenderJob};
+    use crate::render::RenderSettings;
+    let vol = body();
+    let tf = families::for_phantom(Phantom::Body);
+    let dir = tmp("ranks");
+    let path = write_array(&vol, &dir, "a", [13, 9, 11]);
+    let whole = BrickGrid::from_volume(&vol, 8).unwrap();
+    let budget = volume_bytes(&vol) / 10;
+    let cam = camera(&vol, 30.0, 40);
+    let plain = RenderJob::with_grid(
+        Volume::open(&path, None).unwrap(),
+        tf.clone(),
+        whole.clone(),
+        RenderSettings::default(),
+    )
+    .unwrap();
+    for cull in [crate::cull::CullMode::None, crate::cull::CullMode::Verified] {
+        let opts = FrameOptions {
+            cull,
+            ..FrameOptions::default()
+        };
+        let (want, _) = crate::frame::render_frame(&plain, None, &cam, &opts).unwrap();
+        for n in [1, 3] {
+            let out = LocalCommunicator::run(n, |comm| {
+                let opened = Volume::open_with(
+                    &path,
+                    &OpenOptions {
+                        defer_above: Some(budget),
+                        ..OpenOptions::default()
+                    },
+                )
+                .unwrap();
+                let rank = DistributedRank::new(comm);
+                let grid = rank
+                    .measure_grid_within(&opened, 8, Curve::Hilbert, Some(budget))
+                    .unwrap();
+                assert_eq!(grid.ranges(), whole.ranges());
+                let mut job =
+                    RenderJob::with_grid(opened, tf.clone(), grid, RenderSettings::default())
+                        .unwrap();
+                rank.read_own_bricks(&mut job, Curve::Hilbert, 1, budget)
+                    .unwrap();
+                assert!(job.bricks.is_none() && job.store.is_some());
+                rank.frame(&job, None, &cam, &opts).unwrap()
+            });
+            let (image, stats) = out[0].clone().expect("rank 0 has the frame");
+            let what = format!("{cull:?}, {n} ranks");
+            assert!(image.pixels() == want.pixels(), "pixels differ: {what}");
+            assert_eq!(stats.ranks.len(), n);
+            for r in &stats.ranks {
+                // Each rank read exactly the bricks it rendered, from its own store.
+                assert_eq!(
+                    r.bricks_read + r.cache_hits,
+                    r.bricks_rendered as u64,
+                    "{what}"
+                );
+                assert!(r.bytes_read > 0, "{what}: rank {} read nothing", r.rank);
+            }
+        }
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
