@@ -397,6 +397,11 @@ pub(crate) struct BenchCullArgs {
     /// `exact`, it tells the tables' slack from what one number per brick cannot say.
     #[arg(long)]
     pub(crate) ideal: bool,
+    /// The predictor of the sweep's verified frames (see `render --predictor`): e.g. `pof`
+    /// to measure the --pof tables (built with `pof build --method typical`) as predictors.
+    /// > default: proxy
+    #[arg(long, default_value = "proxy")]
+    pub(crate) predictor: String,
     /// Goals to check the measures against and report under "targets": a JSON list of
     /// {"what", "target", "at_most"} (benches/targets/cull.json holds issue 4's).
     /// > default: none

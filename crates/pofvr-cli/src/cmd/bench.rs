@@ -357,7 +357,12 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
     let sweep_report = if a.sweep > 0 {
         let ideal = ideal.as_ref().map(|i| i as &dyn OpacityBound);
         let views = bench::sweep_views(a.sweep);
-        let rows = bench::sweep(&job, &pofs, ideal, &views, (w, h), &bars)?;
+        let predictor: pofvr::cull::Predictor = a
+            .predictor
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!("--predictor: {e}"))?;
+        let rows = bench::sweep_with(&job, &pofs, ideal, &views, (w, h), predictor, &bars)?;
+        println!("sweep: verified frames predicted by {}", predictor.name());
         let summary = SweepSummary::of(&rows);
         print_sweep(&rows, &summary);
         let mut report = serde_json::to_value(&summary)?;
@@ -438,6 +443,18 @@ fn print_sweep(rows: &[SweepView], summary: &SweepSummary) {
     line(
         "points culled below exact (ideal POFs)",
         &summary.points_below_exact_ideal,
+    );
+    line(
+        "points rendered over exact (verified)",
+        &summary.points_rendered_over_exact_verified,
+    );
+    line(
+        "repaired % of rendered (verified)",
+        &summary.repaired_percent_verified,
+    );
+    line(
+        "rule violations (verified, pixels)",
+        &summary.rule_violations_verified,
     );
     line("load balance at 32 ranks (1 replica)", &summary.balance_32);
     line(

@@ -34,9 +34,11 @@ pub(crate) enum PofCommand {
 /// Knobs of the precompute shared by `pof build` and `bench pof`.
 #[derive(Args, Debug, Clone)]
 pub(crate) struct PofKnobs {
-    /// How cell values are obtained: `bound` (a rigorous lower bound, fast, loose) or
+    /// How cell values are obtained: `bound` (a rigorous lower bound, fast, loose),
     /// `sampled` (the ray caster's samples measured on a ray grid and kept at --margin: an
-    /// empirical bound, verified with `pofvr pof check`).
+    /// empirical bound, verified with `pofvr pof check`) or `typical` (a low quantile of the
+    /// non-empty core rays' depths at each cell's centre: a predictor for `--cull verified`,
+    /// not a bound; the cheapest build).
     /// > default: bound
     #[arg(long, default_value = "bound")]
     pub(crate) method: String,
@@ -59,21 +61,22 @@ pub(crate) struct PofKnobs {
     /// > default: half the brick size
     #[arg(long, value_name = "L")]
     pub(crate) core_length: Option<f32>,
-    /// Entry-face patch size of the bound, or spacing of the sampled method's rays, in voxels.
-    /// > default: 0.5 (bound), 1 (sampled)
+    /// Entry-face patch size of the bound, or spacing of the sampled and typical methods'
+    /// rays, in voxels.
+    /// > default: 0.5 (bound), 1 (sampled), 3 (typical)
     #[arg(long)]
     pub(crate) pitch: Option<f32>,
-    /// Lattice phases per ray of the sampled method, evenly spread over a step.
-    /// > default: 2
+    /// Lattice phases per ray of the sampled and typical methods, evenly spread over a step.
+    /// > default: 2 (sampled), 1 (typical)
     #[arg(long)]
     pub(crate) phases: Option<usize>,
     /// Measured directions per view-cell edge.
-    /// > default: 2
-    #[arg(long, default_value_t = 2)]
-    pub(crate) subdiv: usize,
+    /// > default: 2 (bound, sampled), 1 (typical: the cell's centre)
+    #[arg(long)]
+    pub(crate) subdiv: Option<usize>,
     /// Share of the measured optical depth kept for directions (and, sampled, ray positions
     /// and phases) between the measured ones.
-    /// > default: 0.9 (bound), 0.7 (sampled)
+    /// > default: 0.9 (bound), 0.7 (sampled), 1 (typical)
     #[arg(long)]
     pub(crate) margin: Option<f32>,
     /// Leave out the joint POF (the whole family at the file's weights, which lifts the
@@ -103,7 +106,7 @@ impl PofKnobs {
             core_length: self.core_length,
             pitch: self.pitch.unwrap_or(d.pitch),
             phases: self.phases.unwrap_or(d.phases),
-            subdiv: self.subdiv,
+            subdiv: self.subdiv.unwrap_or(d.subdiv),
             margin: self.margin.unwrap_or(d.margin),
             joint: !self.no_joint,
         })
@@ -276,6 +279,13 @@ fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
             a.out.display()
         );
     }
+    if settings.method == PofMethod::Typical {
+        eprintln!(
+            "note: typical POFs predict rather than bound; cull with them as \
+             `--cull verified --predictor pof --pof {}` (or `--cull pof --verify`)",
+            a.out.display()
+        );
+    }
     Ok(())
 }
 
@@ -376,6 +386,11 @@ fn info(a: &PofInfoArgs) -> Result<()> {
                 "sampled (measured on rays {} voxels apart at {} lattice phases: an empirical bound)",
                 m.pitch, m.phases
             ),
+            PofMethod::Typical => format!(
+                "typical (a low quantile of the non-empty core rays' depths, rays {} voxels apart: \
+                 a predictor for --cull verified, not a bound)",
+                m.pitch
+            ),
         }
     );
     println!(
@@ -389,7 +404,7 @@ fn info(a: &PofInfoArgs) -> Result<()> {
         m.core_length,
         match m.method {
             PofMethod::Bound => "patch pitch",
-            PofMethod::Sampled => "ray pitch",
+            PofMethod::Sampled | PofMethod::Typical => "ray pitch",
         },
         m.pitch
     );

@@ -79,8 +79,8 @@ pub(super) struct Ctx<'a> {
     /// Value widening so that float rounding of a trilinear sample never leaves the range.
     widen: f32,
     pub(super) p: usize,
-    views: [usize; 2],
-    subdiv: usize,
+    pub(super) views: [usize; 2],
+    pub(super) subdiv: usize,
     pub(super) step: f64,
     pub(super) core: f64,
     pub(super) pitch: f64,
@@ -89,8 +89,14 @@ pub(super) struct Ctx<'a> {
     encoding: super::Encoding,
     record_len: usize,
     pub(super) phases: usize,
-    /// The sampled method's per-bin extinction rows.
+    /// The sampled and typical methods' per-bin extinction rows (the typical method's with
+    /// the joint family as one more lane).
     tau: Option<TauRows>,
+    method: PofMethod,
+    /// `Typical`: the joint POF is measured as the last lane of `tau`, not by `joint`.
+    typical_joint: bool,
+    /// `Typical`: the quantile kept.
+    quantile: f64,
     /// The joint POF's one-basis context (the family at the build's weights).
     joint: Option<Box<Ctx<'a>>>,
 }
@@ -195,12 +201,25 @@ pub(super) fn build(
         encoding: settings.encoding,
         record_len,
         phases: settings.phases,
-        tau: (settings.method == PofMethod::Sampled).then(|| TauRows::new(sampled, settings.step)),
+        tau: match settings.method {
+            PofMethod::Bound => None,
+            PofMethod::Sampled => Some(TauRows::new(sampled, settings.step)),
+            PofMethod::Typical => Some(TauRows::with_extra(
+                sampled,
+                joint_sampled.as_ref(),
+                settings.step,
+            )),
+        },
+        method: settings.method,
+        typical_joint: settings.method == PofMethod::Typical && joint_sampled.is_some(),
+        quantile: super::TYPICAL_QUANTILE,
         joint: None,
     };
-    ctx.joint = joint_sampled
-        .as_ref()
-        .map(|js| Box::new(ctx.sibling(js, settings.step)));
+    if settings.method != PofMethod::Typical {
+        ctx.joint = joint_sampled
+            .as_ref()
+            .map(|js| Box::new(ctx.sibling(js, settings.step)));
+    }
     let meta = PofMeta {
         dims: volume.dims().map(|d| d as u64),
         dtype: volume.data_type(),
@@ -221,7 +240,7 @@ pub(super) fn build(
         method: settings.method,
         phases: match settings.method {
             PofMethod::Bound => 1,
-            PofMethod::Sampled => settings.phases as u32,
+            PofMethod::Sampled | PofMethod::Typical => settings.phases as u32,
         },
         joint: anchor,
         cell_major: settings.encoding != super::Encoding::Cubic,
@@ -456,20 +475,33 @@ impl<'a> Ctx<'a> {
     /// The encoded record of a brick, or `None` when its POF is 0 for every basis.
     fn brick_record(&self, id: BrickId) -> Option<Vec<u8>> {
         let zero = |t: &Vec<f32>| t.iter().all(|a| *a <= 0.0);
-        let own = self.tables_of(id).filter(|t| !t[..self.p].iter().all(zero));
-        let joint = self
-            .joint
-            .as_ref()
-            .and_then(|j| j.tables_of(id))
-            .and_then(|mut t| t.pop())
-            .filter(|t| !zero(t));
+        let (own, joint) = match (self.method, &self.tau) {
+            (PofMethod::Typical, Some(tau)) => {
+                match super::typical::tables(self, tau, self.typical_joint, self.quantile, id) {
+                    Some(mut t) => {
+                        let j = if self.typical_joint { t.pop() } else { None };
+                        (Some(t), j)
+                    }
+                    None => (None, None),
+                }
+            }
+            _ => (
+                self.tables_of(id),
+                self.joint
+                    .as_ref()
+                    .and_then(|j| j.tables_of(id))
+                    .and_then(|mut t| t.pop()),
+            ),
+        };
+        let own = own.filter(|t| !t[..self.p].iter().all(zero));
+        let joint = joint.filter(|t| !zero(t));
         if own.is_none() && joint.is_none() {
             return None;
         }
         let cells = self.views[0] * self.views[1];
         let funcs = self.p + if self.sets { self.p * (self.p - 1) } else { 0 };
         let mut tables = own.unwrap_or_else(|| vec![vec![0.0; cells]; funcs]);
-        if self.joint.is_some() {
+        if self.joint.is_some() || self.typical_joint {
             tables.push(joint.unwrap_or_else(|| vec![0.0; cells]));
         }
         let views = self.views.map(|v| v as u32);
@@ -501,6 +533,9 @@ impl<'a> Ctx<'a> {
             record_len: self.record_len,
             phases: self.phases,
             tau: self.tau.as_ref().map(|_| TauRows::new(sampled, step)),
+            method: self.method,
+            typical_joint: false,
+            quantile: self.quantile,
             joint: None,
         }
     }

@@ -55,6 +55,7 @@ mod settings;
 mod table;
 #[cfg(test)]
 mod test;
+mod typical;
 mod view_grid;
 
 pub use encoding::Encoding;
@@ -63,6 +64,7 @@ pub use lookup::{PofMode, ALPHA_MAX};
 pub use meta::{range_hash, PofMeta};
 pub use settings::{
     PofMethod, PofSettings, JOINT_MAX_BASES, SAMPLED_MARGIN, SAMPLED_PHASES, SAMPLED_PITCH,
+    TYPICAL_PITCH, TYPICAL_QUANTILE,
 };
 pub use table::PofTable;
 pub use view_grid::{angles, direction};

@@ -32,20 +32,32 @@ use crate::with_voxels;
 /// Per-basis extinction per step, `lanes` floats per bin (bases padded with zeros): the
 /// hot loop adds a whole bin's row at once.
 pub(super) struct TauRows {
-    lanes: usize,
-    rows: Vec<f32>,
+    pub(super) lanes: usize,
+    pub(super) rows: Vec<f32>,
     lo: f32,
     scale: f32,
 }
 
 impl TauRows {
     pub(super) fn new(sampled: &SampledTf, step: f32) -> Self {
+        Self::with_extra(sampled, None, step)
+    }
+
+    /// The bases of `sampled`, then `extra`'s one basis as lane p (the typical method
+    /// measures the joint POF in the same pass: its extinction is linear in the bases').
+    pub(super) fn with_extra(sampled: &SampledTf, extra: Option<&SampledTf>, step: f32) -> Self {
         let p = sampled.basis_count();
-        let lanes = p.next_multiple_of(4).max(4);
+        let used = p + usize::from(extra.is_some());
+        let lanes = used.next_multiple_of(4).max(4);
         let mut rows = vec![0f32; TF_BINS * lanes];
         for i in 0..p {
             for (b, t) in sampled.tau_table(i).iter().enumerate() {
                 rows[b * lanes + i] = t * step;
+            }
+        }
+        if let Some(x) = extra {
+            for (b, t) in x.tau_table(0).iter().enumerate() {
+                rows[b * lanes + p] = t * step;
             }
         }
         let (lo, scale) = sampled.bin_params();
@@ -59,7 +71,7 @@ impl TauRows {
 
     /// The bin of value `v`, as the classifier computes it.
     #[inline(always)]
-    fn bin(&self, v: f32) -> usize {
+    pub(super) fn bin(&self, v: f32) -> usize {
         #[allow(clippy::manual_clamp)]
         let b = ((v - self.lo) * self.scale)
             .max(0.0)
@@ -71,7 +83,7 @@ impl TauRows {
 
 /// Per-ray accumulators: a fixed-width array for the common few-basis families, a vector
 /// otherwise.
-trait Acc {
+pub(super) trait Acc {
     fn zero(&mut self);
     /// Adds bin `b`'s row.
     fn add(&mut self, rows: &[f32], b: usize);
@@ -130,7 +142,7 @@ impl Acc for Vec<f32> {
 /// One brick's voxels (ghost layer included) as f32 in brick-local coordinates, and what
 /// the previous direction learnt.
 pub(super) struct SampledBrick {
-    n: [usize; 3],
+    pub(super) n: [usize; 3],
     vox: Vec<f32>,
     /// Where each basis's minimising ray crossed the centre plane at the previous
     /// direction: marched first, it sets a tight limit early so the other rays stop sooner.
@@ -344,16 +356,16 @@ impl SampledBrick {
 
     /// The trilinear sampler over the brick's voxels, in brick-local coordinates: the
     /// ray caster's own, so that a sample here is the renderer's sample, bit for bit.
-    fn sampler(&self) -> TrilinearSampler<'_, f32> {
+    pub(super) fn sampler(&self) -> TrilinearSampler<'_, f32> {
         TrilinearSampler::new(&self.vox, self.n.map(|x| x + 1))
     }
 }
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+pub(super) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+pub(super) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [
         a[1] * b[2] - a[2] * b[1],
         a[2] * b[0] - a[0] * b[2],
@@ -361,7 +373,7 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
-fn normalize(a: [f64; 3]) -> [f64; 3] {
+pub(super) fn normalize(a: [f64; 3]) -> [f64; 3] {
     let l = dot(a, a).sqrt();
     a.map(|x| x / l)
 }

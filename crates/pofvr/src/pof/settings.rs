@@ -12,11 +12,18 @@ pub enum PofMethod {
     /// The optical depth the ray caster's own samples give, measured on a grid of parallel
     /// rays and lattice phases and kept at `margin`: tight, an empirical bound.
     Sampled,
+    /// A *typical* value, not a bound: per view cell, the [`TYPICAL_QUANTILE`] of the
+    /// optical depths the ray caster's samples give on the core rays that see the basis at
+    /// all (the paper's "minimum over non-empty pixels", lifted from the minimum to a low
+    /// quantile), measured at the cell's centre direction on a coarse ray grid. A
+    /// predictor for `--cull verified`, cheap to build; culling with it unverified breaks
+    /// the threshold rule.
+    Typical,
 }
 
 impl PofMethod {
-    /// Both methods.
-    pub const ALL: [PofMethod; 2] = [PofMethod::Bound, PofMethod::Sampled];
+    /// Every method.
+    pub const ALL: [PofMethod; 3] = [PofMethod::Bound, PofMethod::Sampled, PofMethod::Typical];
 
     /// The name used on the command line and in `pof info`.
     #[must_use]
@@ -24,6 +31,7 @@ impl PofMethod {
         match self {
             PofMethod::Bound => "bound",
             PofMethod::Sampled => "sampled",
+            PofMethod::Typical => "typical",
         }
     }
 
@@ -31,6 +39,7 @@ impl PofMethod {
         match self {
             PofMethod::Bound => 0,
             PofMethod::Sampled => 1,
+            PofMethod::Typical => 2,
         }
     }
 
@@ -38,6 +47,7 @@ impl PofMethod {
         Some(match c {
             0 => PofMethod::Bound,
             1 => PofMethod::Sampled,
+            2 => PofMethod::Typical,
             _ => return None,
         })
     }
@@ -56,7 +66,7 @@ impl std::str::FromStr for PofMethod {
         PofMethod::ALL
             .into_iter()
             .find(|m| m.name() == s)
-            .ok_or_else(|| format!("unknown POF method {s:?}: expected bound or sampled"))
+            .ok_or_else(|| format!("unknown POF method {s:?}: expected bound, sampled or typical"))
     }
 }
 
@@ -91,7 +101,8 @@ pub struct PofSettings {
     /// directions stand for both). Default [`SAMPLED_PHASES`].
     pub phases: usize,
     /// Directions measured per cell edge: a cell's value is the minimum over a
-    /// `(subdiv+1)²` grid of directions including its borders. Default 2.
+    /// `(subdiv+1)²` grid of directions including its borders (`Typical`: over the centres
+    /// of `subdiv²` sub-cells). Default 2 (`Typical`: 1, the cell's centre).
     pub subdiv: usize,
     /// Fraction of the measured optical depth kept, for directions between the measured
     /// ones (and, for `Sampled`, for ray positions and phases between the measured ones).
@@ -118,6 +129,13 @@ pub const SAMPLED_PITCH: f32 = 1.0;
 pub const SAMPLED_PHASES: usize = 2;
 /// Default optical-depth margin of the sampled method.
 pub const SAMPLED_MARGIN: f32 = 0.7;
+/// Default ray spacing of the typical method, in voxels: a quantile needs a sample of the
+/// rays, not all of them.
+pub const TYPICAL_PITCH: f32 = 3.0;
+/// The quantile of the non-empty core rays' optical depths the typical method keeps
+/// (0 would be the paper's minimum over non-empty pixels). Not tuned yet: measure
+/// others with `pofvr bench cull --sweep 24 --predictor pof` (docs/culling.md).
+pub const TYPICAL_QUANTILE: f64 = 0.1;
 
 impl Default for PofSettings {
     fn default() -> Self {
@@ -129,7 +147,12 @@ impl PofSettings {
     /// The defaults of `method`: pitch, phases and margin differ between methods.
     #[must_use]
     pub fn for_method(method: PofMethod) -> Self {
-        let sampled = method == PofMethod::Sampled;
+        let (pitch, phases, subdiv, margin) = match method {
+            PofMethod::Bound => (0.5, 1, 2, 0.9),
+            PofMethod::Sampled => (SAMPLED_PITCH, SAMPLED_PHASES, 2, SAMPLED_MARGIN),
+            // One direction per cell (its centre), one phase, the depth as measured.
+            PofMethod::Typical => (TYPICAL_PITCH, 1, 1, 1.0),
+        };
         PofSettings {
             method,
             views: [36, 36],
@@ -138,10 +161,10 @@ impl PofSettings {
             step: 1.0,
             ert: 0.99,
             core_length: None,
-            pitch: if sampled { SAMPLED_PITCH } else { 0.5 },
-            phases: if sampled { SAMPLED_PHASES } else { 1 },
-            subdiv: 2,
-            margin: if sampled { SAMPLED_MARGIN } else { 0.9 },
+            pitch,
+            phases,
+            subdiv,
+            margin,
             joint: true,
         }
     }

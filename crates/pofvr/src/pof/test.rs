@@ -1073,3 +1073,56 @@ fn lookups_on_cell_borders_take_the_best_cell_and_never_exceed_brute_force() {
     assert!(compared > 50, "{compared}");
     assert!(lifted > 0, "a border lookup gains somewhere");
 }
+
+#[test]
+fn typical_values_sit_above_the_sampled_minimum_and_keep_their_method() {
+    // A low quantile of the non-empty core rays is at least their minimum: cells where the
+    // sampled (minimum) table is positive are rarely lower in the typical table, and on the
+    // whole the typical values are higher. The joint lane (measured in the same pass) and
+    // the sets must be stored too.
+    let s = phantom(64);
+    let sampled = table(&s, &small_views_for(PofMethod::Sampled));
+    let typical = table(
+        &s,
+        &PofSettings {
+            sets: true,
+            ..small_views_for(PofMethod::Typical)
+        },
+    );
+    assert_eq!(typical.meta().method, PofMethod::Typical);
+    assert!(typical.meta().joint.is_some());
+    assert!(typical.has_sets());
+    let (mut sum_s, mut sum_t, mut cells, mut lower) = (0f64, 0f64, 0usize, 0usize);
+    for id in s.grid.ids() {
+        for i in 0..12 {
+            for j in 0..12 {
+                let a = sampled.basis_opacities(id, (i, j));
+                let t = typical.basis_opacities(id, (i, j));
+                for (x, y) in a.iter().zip(&t) {
+                    if *x <= 0.0 && *y <= 0.0 {
+                        continue;
+                    }
+                    sum_s += f64::from(*x);
+                    sum_t += f64::from(*y);
+                    cells += 1;
+                    lower += usize::from(*y < 0.9 * *x);
+                }
+            }
+        }
+    }
+    eprintln!(
+        "typical: {cells} cells, mean {:.4} against sampled {:.4}, {lower} lower",
+        sum_t / cells as f64,
+        sum_s / cells as f64
+    );
+    assert!(cells > 100, "{cells}");
+    assert!(sum_t > sum_s, "typical {sum_t} sampled {sum_s}");
+    assert!((lower as f64) < 0.05 * cells as f64, "{lower} of {cells}");
+    // The file keeps the method: a reader sees a typical table, not a bound.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.pof");
+    typical.save(&path).unwrap();
+    let back = PofTable::open(&path).unwrap();
+    assert_eq!(back.meta().method, PofMethod::Typical);
+    assert_eq!(back.meta().pitch, TYPICAL_PITCH);
+}

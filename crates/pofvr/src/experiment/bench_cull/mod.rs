@@ -4,7 +4,7 @@
 mod sweep;
 mod targets;
 
-pub use sweep::{sweep, sweep_views, Spread, SweepSummary, SweepView};
+pub use sweep::{sweep, sweep_views, sweep_with, Spread, SweepSummary, SweepView};
 pub use targets::{evaluate_targets, Target, TargetSpec};
 
 use serde::Serialize;

@@ -142,7 +142,24 @@ pub fn sweep(
     bounds: &dyn OpacityBound,
     ideal: Option<&dyn OpacityBound>,
     views: &[[f64; 2]],
+    size: (u32, u32),
+    progress: &dyn Progress,
+) -> Result<Vec<SweepView>, ExperimentError> {
+    sweep_with(job, bounds, ideal, views, size, Predictor::BEST, progress)
+}
+
+/// [`sweep`] with `predictor` for the verified frames (`bench cull --predictor`): e.g.
+/// [`Predictor::Pof`] to measure typical-value POFs as predictors against the oracle.
+///
+/// # Errors
+/// [`ExperimentError::Frame`] when a frame fails.
+pub fn sweep_with(
+    job: &RenderJob,
+    bounds: &dyn OpacityBound,
+    ideal: Option<&dyn OpacityBound>,
+    views: &[[f64; 2]],
     (w, h): (u32, u32),
+    predictor: Predictor,
     progress: &dyn Progress,
 ) -> Result<Vec<SweepView>, ExperimentError> {
     progress.begin("view sweep", views.len() as u64);
@@ -166,7 +183,7 @@ pub fn sweep(
             &cam,
             &FrameOptions {
                 cull: CullMode::Verified,
-                predictor: Predictor::BEST,
+                predictor,
                 ..FrameOptions::default()
             },
         )?;
