@@ -497,3 +497,67 @@ fn pofs_of_edited_bases_predict_verified_frames_and_plain_pof_refuses_them() {
     assert!(o.status.success() && e.contains("warning"), "{e}");
     rule_holds(&d.join("w.raw"), &d.join("proxy.raw"), 64, 56);
 }
+
+#[test]
+fn typical_pofs_predict_verified_frames_and_plain_pof_refuses_them() {
+    // Typical values (a quantile, not a minimum) bound nothing: an unverified POF cull
+    // with them is refused, naming the file; a verified frame takes them as its
+    // predictor, without the edited-bases warning, and keeps the threshold rule.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = pofvr()
+        .current_dir(d)
+        .args(["pof", "build", "phantom:head:48", "--brick", "8"])
+        .args([
+            "--method",
+            "typical",
+            "--views",
+            "6,6",
+            "--core-length",
+            "4",
+        ])
+        .args(["--sets", "--quiet", "-o", "t.pof"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let render = |extra: &[&str], out: &str| {
+        pofvr()
+            .current_dir(d)
+            .args(["render", "phantom:head:48", "--brick", "8"])
+            .args(["--size", "64x56", "--view", "30,20", "--quiet"])
+            .args(["--out", &format!("{out}.png")])
+            .args(["--out-raw", &format!("{out}.raw")])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = render(&["--whole"], "w");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for plain in [
+        &["--pof", "t.pof"][..],
+        &["--pof", "t.pof", "--cull", "pof-set"],
+    ] {
+        let o = render(plain, "plain");
+        assert_eq!(o.status.code(), Some(2), "{plain:?}");
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(e.contains("t.pof") && e.contains("typical"), "{e}");
+        assert!(!d.join("plain.png").exists() && !d.join("plain.raw").exists());
+    }
+    for (name, args) in [
+        ("pof-verify", &["--cull", "pof", "--verify"][..]),
+        (
+            "verified-pof-set",
+            &["--cull", "verified", "--predictor", "pof-set"],
+        ),
+    ] {
+        let o = render(&[&["--pof", "t.pof"][..], args].concat(), name);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{name}: {e}");
+        assert!(!e.contains("warning"), "{name}: {e}");
+        rule_holds(&d.join("w.raw"), &d.join(format!("{name}.raw")), 64, 56);
+    }
+}

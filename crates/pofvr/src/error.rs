@@ -156,8 +156,8 @@ pub enum Error {
         mode: CullMode,
     },
     /// An unverified POF cull with POFs built for other basis shapes
-    /// ([`crate::Scene::load_pof_predictions`]): they bound nothing.
-    #[error("cull mode {} needs POFs of the family's bases without verification, and {why}: verify the frame or rebuild the POFs", .mode.name())]
+    /// ([`crate::Scene::load_pof_predictions`]) or of typical values: they bound nothing.
+    #[error("cull mode {} without verification needs POFs that bound the family's opacity, and {why}: verify the frame (--verify or --cull verified) or build bounds (pof build --method bound)", .mode.name())]
     StalePofs {
         /// The mode asked for.
         mode: CullMode,

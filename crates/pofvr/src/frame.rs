@@ -279,12 +279,17 @@ impl RenderJob {
     /// # Errors
     /// [`PofError`] naming the file and what differs, two levels of one core length, or
     /// sub-brick tables of two brick sizes.
+    ///
+    /// The levels carry no mark of typical-value tables (`pof build --method typical`),
+    /// which bound nothing: [`crate::Scene::load_pof_levels`] refuses unverified culls
+    /// with those; a job's caller (the benchmarks, which count rule violations) must
+    /// verify them itself.
     pub fn load_pof_levels(
         &self,
         first: &std::path::Path,
         more: &[std::path::PathBuf],
     ) -> Result<CoreLevels, PofError> {
-        crate::scene::pofs::load_levels(self, first, more)
+        crate::scene::pofs::load_levels(self, first, more).map(|l| l.levels)
     }
 
     /// The low-resolution proxy of the volume for this job's family

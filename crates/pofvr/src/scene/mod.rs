@@ -305,9 +305,9 @@ impl Scene {
     /// # Errors
     /// [`Error::Pof`] naming the file and what differs, or two levels of one core length.
     pub fn load_pof_levels(mut self, first: impl AsRef<Path>, more: &[PathBuf]) -> Result<Scene> {
-        let levels = pofs::load_levels(&self.job, first.as_ref(), more)?;
-        let sets = levels.has_sets();
-        self.pofs = Some(Pofs::new(Box::new(levels), sets));
+        let l = pofs::load_levels(&self.job, first.as_ref(), more)?;
+        let sets = l.levels.has_sets();
+        self.pofs = Some(Pofs::new(Box::new(l.levels), sets).typical(l.typical));
         Ok(self)
     }
 
@@ -327,9 +327,13 @@ impl Scene {
         first: impl AsRef<Path>,
         more: &[PathBuf],
     ) -> Result<Scene> {
-        let (levels, stale) = pofs::load_levels_for(&self.job, first.as_ref(), more, true)?;
-        let sets = levels.has_sets();
-        self.pofs = Some(Pofs::new(Box::new(levels), sets).stale(stale));
+        let l = pofs::load_levels_for(&self.job, first.as_ref(), more, true)?;
+        let sets = l.levels.has_sets();
+        self.pofs = Some(
+            Pofs::new(Box::new(l.levels), sets)
+                .stale(l.stale)
+                .typical(l.typical),
+        );
         Ok(self)
     }
 
@@ -394,9 +398,10 @@ impl Scene {
             if !self.pofs.as_ref().is_some_and(|own| std::ptr::eq(own, p)) {
                 return Err(Error::ForeignPofs);
             }
-            // POFs of other basis shapes bound nothing: only verification keeps the rule.
-            if let (Some(why), false) = (p.stale_reason(), req.verify || mode == CullMode::Verified)
-            {
+            // POFs of other basis shapes, and typical values, bound nothing: only
+            // verification keeps the rule.
+            let why = p.stale_reason().or(p.typical_reason());
+            if let (Some(why), false) = (why, req.verify || mode == CullMode::Verified) {
                 return Err(Error::StalePofs {
                     mode,
                     why: why.to_owned(),

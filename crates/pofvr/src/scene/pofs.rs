@@ -31,6 +31,10 @@ pub struct Pofs {
     /// Why the POFs bound nothing (built for other basis shapes), when they don't: they
     /// then only predict, for verified frames ([`crate::Scene::load_pof_predictions`]).
     stale: Option<String>,
+    /// Why the POFs are predictions rather than bounds by construction, when they are
+    /// (tables of typical values, `pof build --method typical`): they too may cull a frame
+    /// only when it verifies the cull.
+    typical: Option<String>,
 }
 
 impl std::fmt::Debug for Pofs {
@@ -39,6 +43,7 @@ impl std::fmt::Debug for Pofs {
             .field("core_length", &self.bound.core_length())
             .field("sets", &self.sets)
             .field("stale", &self.stale)
+            .field("typical", &self.typical)
             .finish_non_exhaustive()
     }
 }
@@ -49,6 +54,7 @@ impl Pofs {
             bound: bound.into(),
             sets,
             stale: None,
+            typical: None,
         }
     }
 
@@ -57,6 +63,19 @@ impl Pofs {
     pub(crate) fn stale(mut self, why: Option<String>) -> Self {
         self.stale = why;
         self
+    }
+
+    /// These POFs marked as typical values (`why` names the file): predictions only.
+    pub(crate) fn typical(mut self, why: Option<String>) -> Self {
+        self.typical = why;
+        self
+    }
+
+    /// Why these POFs are predictions and not bounds, when a table holds typical values
+    /// (`pof build --method typical`); `None` for bounds.
+    #[must_use]
+    pub fn typical_reason(&self) -> Option<&str> {
+        self.typical.as_deref()
     }
 
     /// Why these POFs bound nothing, when they were built for other basis shapes than the
@@ -214,8 +233,18 @@ pub(crate) fn load_levels(
     job: &RenderJob,
     first: &Path,
     more: &[PathBuf],
-) -> Result<CoreLevels, PofError> {
-    load_levels_for(job, first, more, false).map(|(levels, _)| levels)
+) -> Result<Loaded, PofError> {
+    load_levels_for(job, first, more, false)
+}
+
+/// Tables loaded as levels, with why they bound nothing when they don't.
+pub(crate) struct Loaded {
+    /// The levels.
+    pub(crate) levels: CoreLevels,
+    /// The first mismatch of basis shapes, for tables of other bases.
+    pub(crate) stale: Option<String>,
+    /// The first table of typical values, named.
+    pub(crate) typical: Option<String>,
 }
 
 /// Checks `table` against `grid` and `job`'s bases. With `any_shapes`, tables built for
@@ -243,9 +272,10 @@ pub(crate) fn load_levels_for(
     first: &Path,
     more: &[PathBuf],
     any_shapes: bool,
-) -> Result<(CoreLevels, Option<String>), PofError> {
+) -> Result<Loaded, PofError> {
     let render = job.grid.brick_size();
     let mut stale: Option<String> = None;
+    let mut typical: Option<String> = None;
     let mut own = Vec::new();
     let mut sub: Vec<PofTable> = Vec::new();
     let mut fine: Option<BrickGrid> = None;
@@ -253,6 +283,14 @@ pub(crate) fn load_levels_for(
         let file = path.display().to_string();
         // Opened (mapped and CRC-checked) once, then matched to the grid its size says.
         let table = PofTable::open(path)?;
+        // A typical value is a quantile, not a minimum: it predicts and bounds nothing,
+        // so an unverified cull with it could hide visible bricks (measured: the opaque
+        // MRI family loses bricks the oracle keeps).
+        if table.meta().method == PofMethod::Typical && typical.is_none() {
+            typical = Some(format!(
+                "{file} holds typical values (pof build --method typical), which predict a cull but bound nothing"
+            ));
+        }
         let size = table.meta().brick_size as usize;
         if size == render || size < 2 || !render.is_multiple_of(size) {
             // The render grid's own, or a mismatch that `check_grid` names.
@@ -297,5 +335,9 @@ pub(crate) fn load_levels_for(
         (None, Some(sub)) => sub,
         (None, None) => unreachable!("at least the first table"),
     };
-    Ok((levels, stale))
+    Ok(Loaded {
+        levels,
+        stale,
+        typical,
+    })
 }
