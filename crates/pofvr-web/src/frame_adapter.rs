@@ -7,7 +7,7 @@
 //! the library's range bound).
 
 use pofvr::render::Camera;
-use pofvr::{Frame, FrameRequest, Scene};
+use pofvr::{Cull, Frame, FrameRequest, Predict, Scene};
 
 pub use pofvr::cull::CullMode;
 pub use pofvr::frame::{BrickCounts, FrameOptions, FrameStats, RankStats};
@@ -31,7 +31,7 @@ pub struct Look {
 }
 
 /// Renders one frame of `scene` seen by `camera` with `look` and `opts` (its cull mode,
-/// threshold, ranks, curve and replicas), with the scene's engine for them: the march
+/// threshold, ranks, curve, replicas and, for `verified`, predictor), with the scene's engine for them: the march
 /// engine for one rank without culling (the frames while dragging), the brick engine
 /// otherwise.
 ///
@@ -44,9 +44,15 @@ pub fn render(
     opts: &FrameOptions,
     look: &Look,
 ) -> Result<Frame, pofvr::Error> {
-    let cull = scene
-        .cull(opts.cull)
-        .ok_or(pofvr::Error::NoPofs { mode: opts.cull })?;
+    // A verified frame predicts with the options' predictor (the viewer picks `previous`
+    // while a client drags); the other modes are the scene's.
+    let cull = match opts.cull {
+        CullMode::Verified => {
+            Predict::from_predictor(opts.predictor, scene.pofs()).map(Cull::Verified)
+        }
+        mode => scene.cull(mode),
+    }
+    .ok_or(pofvr::Error::NoPofs { mode: opts.cull })?;
     let request = FrameRequest::new(camera)
         .weights(&look.weights)
         .shade(look.shade)

@@ -45,6 +45,7 @@
 
 #![warn(missing_docs)]
 
+mod drag;
 pub mod encode;
 pub mod frame_adapter;
 pub mod histogram;
@@ -124,6 +125,8 @@ pub struct Viewer {
     slot: tf_api::SceneSlot,
     source: String,
     scheduler: Scheduler,
+    /// Each client's last verified set, for its next frame's `previous` predictor.
+    drag: drag::DragMemory,
     defaults: FrameParams,
     loopback_hosts_only: bool,
 }
@@ -157,6 +160,7 @@ impl Viewer {
             slot: tf_api::SceneSlot::new(scene),
             source: source.to_string(),
             scheduler: Scheduler::new(options.render_slots, options.max_clients),
+            drag: drag::DragMemory::new(options.max_clients),
             defaults,
             loopback_hosts_only: options.loopback_hosts_only,
         }
@@ -504,6 +508,10 @@ struct FrameReport<'a> {
     pofs: tf_api::PofState,
     family_version: u64,
     threshold: f32,
+    /// What predicted a `verified` frame's cull: `proxy` for a client's first frame (or its
+    /// first with new weights, threshold or family), `previous` (its last frame's verified
+    /// set) while it drags; `null` for the other modes.
+    predictor: Option<&'static str>,
     frame_ms: f64,
     rays: u64,
     samples: u64,
@@ -571,12 +579,14 @@ async fn frame(
     let generation = ticket.generation();
     let viewer = Arc::clone(&v);
     let scene = Arc::clone(&cur.scene);
+    let family_version = cur.version;
     // The grant moves into the blocking task, so a client that hangs up does not free the
     // render slot before the render it started is finished.
     let rendered = tokio::task::spawn_blocking(move || {
         let _grant = grant;
         viewer.scheduler.count_render();
-        render_png(&viewer, &scene, &p).map(|(png, stats, encode_ms)| (png, stats, encode_ms, p))
+        render_png(&viewer, &scene, &p, family_version)
+            .map(|(png, stats, encode_ms)| (png, stats, encode_ms, p))
     })
     .await;
     let (png, stats, encode_ms, p) = match rendered {
@@ -602,6 +612,7 @@ async fn frame(
         pofs,
         family_version: cur.version,
         threshold: p.options.cull_threshold,
+        predictor: stats.predictor,
         frame_ms: stats.frame_ms,
         rays: stats.rays,
         samples: stats.samples,
@@ -640,10 +651,27 @@ fn render_png(
     v: &Viewer,
     scene: &Scene,
     p: &FrameParams,
+    family_version: u64,
 ) -> Result<(Vec<u8>, FrameStats, f64), String> {
     let cam = v.camera(scene, p);
-    let pofvr::Frame { image, stats } =
-        frame_adapter::render(scene, &cam, &p.options, &p.look).map_err(|e| e.to_string())?;
+    let render = |predictor| {
+        let opts = FrameOptions {
+            predictor,
+            ..p.options.clone()
+        };
+        frame_adapter::render(scene, &cam, &opts, &p.look)
+    };
+    let frame = if p.options.cull == CullMode::Verified {
+        let key = drag::SetKey {
+            family_version,
+            weights: p.look.weights.clone(),
+            threshold: p.options.cull_threshold,
+        };
+        v.drag.render(scene, &p.client, key, render)
+    } else {
+        render(p.options.predictor)
+    };
+    let pofvr::Frame { image, stats } = frame.map_err(|e| e.to_string())?;
     let t = Instant::now();
     let tinted = if p.overlay {
         encode::footprints(

@@ -138,6 +138,9 @@
     $('fig-ranks').textContent = s.ranks;
     $('fig-visible').textContent = s.bricks.visible;
     $('fig-culled').textContent = s.bricks.culled;
+    // Verified frames: what predicted the cull, and what verification found it culled wrongly.
+    $('fig-repaired').textContent = s.predictor ? s.bricks.repaired : '–';
+    $('fig-predictor').textContent = s.predictor || '–';
     // Stale POFs bound other bases: the server culls with `verified` instead, and says so.
     const fallback = s.cull_requested && s.cull_requested !== s.cull;
     const note = $('culling-note');

@@ -331,6 +331,26 @@ impl RenderJob {
             .unwrap_or_else(std::sync::PoisonError::into_inner) = None;
     }
 
+    /// The bricks the last verified frame needed, by brick index (`None` before the first
+    /// verified frame or after [`RenderJob::forget_previous`]).
+    #[must_use]
+    pub fn previous_needed(&self) -> Option<Vec<bool>> {
+        self.previous
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// Sets what the next [`Predictor::Previous`] frame predicts from: a caller that keeps
+    /// several sequences of frames (the viewer, one per client) swaps each one's set in.
+    /// A set of the wrong length is ignored by the predictor (it falls back to the proxy).
+    pub fn set_previous_needed(&self, needed: Option<Vec<bool>>) {
+        *self
+            .previous
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = needed;
+    }
+
     /// Number of bricks that are empty for the current weights.
     #[must_use]
     pub fn empty_bricks(&self) -> usize {

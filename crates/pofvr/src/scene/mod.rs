@@ -535,6 +535,20 @@ impl Scene {
         Ok(frame.map(|(image, stats)| Frame { image, stats }))
     }
 
+    /// The bricks the scene's last verified frame needed ([`crate::cull::Predictor::Previous`]
+    /// predicts from them), by brick index.
+    #[must_use]
+    pub fn previous_needed(&self) -> Option<Vec<bool>> {
+        self.job.previous_needed()
+    }
+
+    /// Sets the set the next [`crate::cull::Predictor::Previous`] frame predicts from (`None`:
+    /// it predicts with the proxy). The scene keeps one set; a caller rendering several
+    /// sequences of frames at once must swap each one's set in and out under its own lock.
+    pub fn set_previous_needed(&self, needed: Option<Vec<bool>>) {
+        self.job.set_previous_needed(needed);
+    }
+
     /// The whole volume ray-cast in one pass with `req`'s camera, weights and shading: no
     /// bricks, no culling (its cull mode, threshold and ranks are not read). Culled frames
     /// are checked against it.
