@@ -32,7 +32,10 @@
 //! `1`), `client` (1–64 of `A-Za-z0-9-_`) and `seq` (echoed back). An invalid, unknown or
 //! repeated parameter is answered `400` with a plain-text message. While the POFs are
 //! `stale` the POF modes render as `verified` ([`tf_api::cull_for`]), and the stats header
-//! says so: `cull` as rendered, `cull_requested`, `pofs`, and `family_version`; under a
+//! says so: `cull` as rendered, `cull_requested`, `pofs`, and `family_version`. A
+//! `verified` frame names its `predictor`: `previous` (the client's last verified set, see
+//! `drag.rs`) after the client's first frame, `proxy` on it; `bricks.repaired` counts what
+//! verification found culled wrongly. Under a
 //! memory budget its `bytes_read`, `bricks_read` and `cache_hits` say what the frame read
 //! from the brick store. Unless
 //! [`ViewerOptions::loopback_hosts_only`] is off, a `Host` other than a loopback name gets

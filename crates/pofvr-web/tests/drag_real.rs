@@ -39,47 +39,59 @@ async fn a_drag_of_the_chest_ct_renders_fewer_bricks_from_the_previous_frame() {
         "lidc2_ct_chest",
         &ViewerOptions::default(),
     ));
-    let look = "w=512&h=512&el=20&threshold=0.95";
-    println!(
-        "frame az  | previous: predictor rendered repaired | proxy: rendered repaired | non-empty"
-    );
-    let (mut prev_sum, mut proxy_sum, mut prev_rep, mut proxy_rep) = (0, 0, 0, 0);
-    for k in 0..12u32 {
-        let az = 30 + 5 * k;
-        let (a, dragged) = frame(&v, &format!("{look}&az={az}&cull=verified&client=drag")).await;
-        let (b, proxied) =
-            frame(&v, &format!("{look}&az={az}&cull=verified&client=fresh{k}")).await;
-        let (_, unculled) = frame(&v, &format!("{look}&az={az}&cull=none&client=none")).await;
-        assert_eq!(b["predictor"], "proxy");
-        assert_eq!(
-            a["predictor"],
-            if k == 0 { "proxy" } else { "previous" },
-            "frame {k}"
-        );
-        assert_rule(&unculled, &dragged, 0.95, &format!("previous, frame {k}"));
-        assert_rule(&unculled, &proxied, 0.95, &format!("proxy, frame {k}"));
-        let n = |s: &serde_json::Value, f: &str| s["bricks"][f].as_u64().unwrap();
+    // The family's own look, and an opaque skin (where the prediction has more to cull).
+    for (w, weights) in [(0, "1,1"), (1, "8,1")] {
+        let look = format!("w=512&h=512&el=20&threshold=0.95&weights={weights}");
         println!(
-            "{k:>5} {az:>3} | {:>8} {:>8} {:>8} | {:>8} {:>8} | {}",
-            a["predictor"].as_str().unwrap(),
-            n(&a, "visible"),
-            n(&a, "repaired"),
-            n(&b, "visible"),
-            n(&b, "repaired"),
-            n(&a, "non_empty")
+            "frame az  | previous: predictor rendered repaired | proxy: rendered repaired | exact | non-empty"
         );
-        if k > 0 {
-            prev_sum += n(&a, "visible");
-            prev_rep += n(&a, "repaired");
-            proxy_sum += n(&b, "visible");
-            proxy_rep += n(&b, "repaired");
+        let (mut prev_sum, mut proxy_sum, mut prev_rep, mut proxy_rep, mut exact_sum) =
+            (0, 0, 0, 0, 0);
+        for k in 0..12u32 {
+            let az = 30 + 5 * k;
+            let (a, dragged) =
+                frame(&v, &format!("{look}&az={az}&cull=verified&client=drag{w}")).await;
+            let (b, proxied) = frame(
+                &v,
+                &format!("{look}&az={az}&cull=verified&client=fresh{w}{k}"),
+            )
+            .await;
+            let (e, _) = frame(&v, &format!("{look}&az={az}&cull=exact&client=exact")).await;
+            let (_, unculled) = frame(&v, &format!("{look}&az={az}&cull=none&client=none")).await;
+            assert_eq!(b["predictor"], "proxy");
+            assert_eq!(
+                a["predictor"],
+                if k == 0 { "proxy" } else { "previous" },
+                "frame {k}"
+            );
+            assert_rule(&unculled, &dragged, 0.95, &format!("previous, frame {k}"));
+            assert_rule(&unculled, &proxied, 0.95, &format!("proxy, frame {k}"));
+            let n = |s: &serde_json::Value, f: &str| s["bricks"][f].as_u64().unwrap();
+            println!(
+                "{weights:>5} {k:>5} {az:>3} | {:>8} {:>8} {:>8} | {:>8} {:>8} | {:>5} | {}",
+                a["predictor"].as_str().unwrap(),
+                n(&a, "visible"),
+                n(&a, "repaired"),
+                n(&b, "visible"),
+                n(&b, "repaired"),
+                n(&e, "visible"),
+                n(&a, "non_empty")
+            );
+            if k > 0 {
+                prev_sum += n(&a, "visible");
+                prev_rep += n(&a, "repaired");
+                proxy_sum += n(&b, "visible");
+                proxy_rep += n(&b, "repaired");
+                exact_sum += n(&e, "visible");
+            }
         }
+        println!(
+            "weights {weights}, frames 1-11: previous renders {:.1} bricks/frame ({:.1} repaired), proxy {:.1} ({:.1} repaired), exact {:.1}",
+            prev_sum as f64 / 11.0,
+            prev_rep as f64 / 11.0,
+            proxy_sum as f64 / 11.0,
+            proxy_rep as f64 / 11.0,
+            exact_sum as f64 / 11.0
+        );
     }
-    println!(
-        "frames 1-11: previous renders {:.1} bricks/frame ({:.1} repaired), proxy {:.1} ({:.1} repaired)",
-        prev_sum as f64 / 11.0,
-        prev_rep as f64 / 11.0,
-        proxy_sum as f64 / 11.0,
-        proxy_rep as f64 / 11.0
-    );
 }
