@@ -1,5 +1,6 @@
 //! The `pofvr` binary: a thin layer over the `pofvr` library.
 
+mod alloc;
 mod args;
 mod cmd;
 mod progress;

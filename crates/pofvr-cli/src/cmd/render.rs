@@ -310,9 +310,15 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
 /// The bytes of `--memory-budget SIZE`, as `render`, `serve` and `experiment` read it: one
 /// parser and one message for all of them.
 pub(crate) fn memory_budget(flag: Option<&str>) -> Result<Option<u64>> {
-    flag.map(pofvr::store::parse_size)
+    let budget = flag
+        .map(pofvr::store::parse_size)
         .transpose()
-        .map_err(|e| anyhow!("--memory-budget: {e}"))
+        .map_err(|e| anyhow!("--memory-budget: {e}"))?;
+    if budget.is_some() {
+        // Freed chunks and slabs must leave the process for the budget to bound it.
+        crate::alloc::return_large_blocks();
+    }
+    Ok(budget)
 }
 
 /// One line on what a budgeted scene read: the budget, where bricks come from, per-frame
