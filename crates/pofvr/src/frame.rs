@@ -341,6 +341,17 @@ impl RenderJob {
             .clone()
     }
 
+    /// Whether a [`Predictor::Previous`] frame has a set to predict from (one of this
+    /// job's bricks: a set of another length is ignored, as the predictor does).
+    #[must_use]
+    pub fn has_previous(&self) -> bool {
+        self.previous
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .as_ref()
+            .is_some_and(|p| p.len() == self.grid.len())
+    }
+
     /// Sets what the next [`Predictor::Previous`] frame predicts from: a caller that keeps
     /// several sequences of frames (the viewer, one per client) swaps each one's set in.
     /// A set of the wrong length is ignored by the predictor (it falls back to the proxy).
@@ -399,6 +410,9 @@ pub struct FrameStats {
     pub verified: bool,
     /// The predictor of a verified frame (`None` otherwise).
     pub predictor: Option<&'static str>,
+    /// What actually predicted a verified frame: the predictor, except `proxy` where
+    /// `previous` had no last frame's set to predict from (a job's first verified frame).
+    pub predicted_by: Option<&'static str>,
     /// Bytes the frame read from the brick store's source, all ranks (0 without a store).
     pub bytes_read: u64,
     /// Bricks it read from the store's source, all ranks (cache misses).
@@ -844,6 +858,12 @@ fn rank_frame(
     let me = comm.rank();
     let weights = look.weights;
     let verify = opts.verify || opts.cull == CullMode::Verified;
+    // Read before this frame stores its own set (after verification, which every rank
+    // reaches only once all have culled), so it says what the cull below predicts from.
+    let predicted_by = verify.then(|| match predictor_of(opts) {
+        Predictor::Previous if !job.has_previous() => Predictor::Proxy.name(),
+        p => p.name(),
+    });
     let cls = job.sampled.classify(weights, job.settings.step);
     let settings = RenderSettings {
         shade: look.shade,
@@ -1123,6 +1143,7 @@ fn rank_frame(
     stats.cull = Some(opts.cull);
     stats.verified = verify;
     stats.predictor = verify.then(|| predictor_of(opts).name());
+    stats.predicted_by = predicted_by;
     stats.bricks = BrickCounts {
         total: job.grid.len(),
         empty: bricks.empty,

@@ -261,6 +261,10 @@ fn previous_predictor_follows_an_orbit() {
         let (reference, _) = render_reference(&j, &c);
         let (img, st) = render_frame(&j, None, &c, &verified(Predictor::Previous, 2)).unwrap();
         assert_conservative(&reference, &img, 0.95, &format!("orbit frame {k}"));
+        // The first frame has no set yet: the proxy predicts it, and the stats say so.
+        assert_eq!(st.predictor, Some("previous"));
+        let by = if k == 0 { "proxy" } else { "previous" };
+        assert_eq!(st.predicted_by, Some(by), "frame {k}");
         if let Some(prev) = &last {
             // A few degrees on, last frame's set is nearly right.
             assert!(
