@@ -203,23 +203,12 @@ impl SampledBrick {
     ) {
         let p = ctx.p;
         let lanes = tau.lanes;
-        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let dh = d.map(|x| x / len);
-        // An orthonormal basis of the plane perpendicular to d.
-        let e = (0..3)
-            .min_by(|a, b| dh[*a].abs().total_cmp(&dh[*b].abs()))
-            .expect("three axes");
-        let mut ev = [0f64; 3];
-        ev[e] = 1.0;
-        let u = normalize(cross(dh, ev));
-        let w = cross(dh, u);
+        let (u, w) = ray_frame(d);
         let c = self.n.map(|x| x as f64 * 0.5);
         let radius = dot(c, c).sqrt();
         let pitch = ctx.pitch;
         let half = (radius / pitch).ceil() as i64;
-        // Depth beyond which a basis's stored opacity saturates at ALPHA_MAX: no ray need
-        // be summed further than that.
-        let cap = (-(1.0 - f64::from(super::ALPHA_MAX)).ln() / ctx.margin) as f32 * 1.001;
+        let cap = saturation_depth(ctx.margin);
         let mut sw = Sweep {
             best: vec![f32::INFINITY; p],
             at_best: vec![Vec::new(); if ctx.sets { p } else { 0 }],
@@ -359,6 +348,29 @@ impl SampledBrick {
     pub(super) fn sampler(&self) -> TrilinearSampler<'_, f32> {
         TrilinearSampler::new(&self.vox, self.n.map(|x| x + 1))
     }
+}
+
+/// An orthonormal basis `u`, `w` of the plane perpendicular to `d` (the plane the core
+/// rays of a direction are spread over).
+pub(super) fn ray_frame(d: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let len = dot(d, d).sqrt();
+    let dh = d.map(|x| x / len);
+    // Crossed with the axis least aligned with d, so that the cross product is well
+    // conditioned.
+    let e = (0..3)
+        .min_by(|a, b| dh[*a].abs().total_cmp(&dh[*b].abs()))
+        .expect("three axes");
+    let mut ev = [0f64; 3];
+    ev[e] = 1.0;
+    let u = normalize(cross(dh, ev));
+    let w = cross(dh, u);
+    (u, w)
+}
+
+/// Depth beyond which a basis's stored opacity saturates at `ALPHA_MAX` (with the build's
+/// `margin`): no ray need be summed further than that.
+pub(super) fn saturation_depth(margin: f64) -> f32 {
+    (-(1.0 - f64::from(super::ALPHA_MAX)).ln() / margin) as f32 * 1.001
 }
 
 pub(super) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {

@@ -26,7 +26,7 @@
 use std::f64::consts::{PI, TAU};
 
 use super::build::Ctx;
-use super::sampled::{cross, dot, normalize, Acc, SampledBrick, TauRows};
+use super::sampled::{dot, ray_frame, saturation_depth, Acc, SampledBrick, TauRows};
 use super::ALPHA_MAX;
 use crate::brick::BrickId;
 
@@ -126,19 +126,11 @@ fn measure_with<A: Acc>(
     let used = p + usize::from(joint);
     let n = sb.n;
     let len = dot(d, d).sqrt();
-    let dh = d.map(|x| x / len);
-    let e = (0..3)
-        .min_by(|a, b| dh[*a].abs().total_cmp(&dh[*b].abs()))
-        .expect("three axes");
-    let mut ev = [0f64; 3];
-    ev[e] = 1.0;
-    let u = normalize(cross(dh, ev));
-    let w = cross(dh, u);
+    let (u, w) = ray_frame(d);
     let c = n.map(|x| x as f64 * 0.5);
     let pitch = ctx.pitch;
     let half = (dot(c, c).sqrt() / pitch).ceil() as i64;
-    // Past this depth the stored opacity is ALPHA_MAX whatever more the ray adds.
-    let cap = (-(1.0 - f64::from(ALPHA_MAX)).ln() / ctx.margin) as f32 * 1.001;
+    let cap = saturation_depth(ctx.margin);
     // Samples at least a voxel apart in index space: where the smallest spacing is a
     // fraction of the others (0.19 against 0.70 mm on the 512×512×1728 chest), the
     // renderer's step crosses a voxel in several samples along x and y, which add nothing
