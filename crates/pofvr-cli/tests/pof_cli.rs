@@ -372,6 +372,44 @@ fn rule_holds(unculled: &std::path::Path, culled: &std::path::Path, w: u32, h: u
     assert!(r.holds(), "{}: {r}", culled.display());
 }
 
+/// `pofvr render phantom:head:48 --brick 8` at 64×56 from 30,20 with `look` (family,
+/// weights) and `extra`, writing OUT.png, OUT.raw and OUT.json in `d`.
+fn render_head48(
+    d: &std::path::Path,
+    look: &[&str],
+    extra: &[&str],
+    out: &str,
+) -> std::process::Output {
+    pofvr()
+        .current_dir(d)
+        .args(["render", "phantom:head:48", "--brick", "8"])
+        .args(look)
+        .args(["--size", "64x56", "--view", "30,20", "--quiet"])
+        .args(["--out", &format!("{out}.png")])
+        .args(["--out-raw", &format!("{out}.raw")])
+        .args(["--stats", &format!("{out}.json")])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// Unverified `pof` and `pof-set` culls with the table `file` are refused (exit 2, the
+/// file and `why` named) and write nothing.
+fn assert_plain_pof_refused(
+    d: &std::path::Path,
+    render: &dyn Fn(&[&str], &str) -> std::process::Output,
+    file: &str,
+    why: &str,
+) {
+    for plain in [&["--pof", file][..], &["--pof", file, "--cull", "pof-set"]] {
+        let o = render(plain, "plain");
+        assert_eq!(o.status.code(), Some(2), "{plain:?}");
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(e.contains(file) && e.contains(why), "{e}");
+        assert!(!d.join("plain.png").exists() && !d.join("plain.raw").exists());
+    }
+}
+
 #[test]
 fn pofs_of_edited_bases_predict_verified_frames_and_plain_pof_refuses_them() {
     let dir = tempfile::tempdir().unwrap();
@@ -424,49 +462,12 @@ fn pofs_of_edited_bases_predict_verified_frames_and_plain_pof_refuses_them() {
         String::from_utf8_lossy(&out.stderr)
     );
     let render = |extra: &[&str], out: &str| {
-        pofvr()
-            .current_dir(d)
-            .args([
-                "render",
-                "phantom:head:48",
-                "--tf",
-                "edited.json",
-                "--brick",
-                "8",
-            ])
-            .args([
-                "--size",
-                "64x56",
-                "--view",
-                "30,20",
-                "--weights",
-                "3,1",
-                "--quiet",
-            ])
-            .args([
-                "--out",
-                &format!("{out}.png"),
-                "--out-raw",
-                &format!("{out}.raw"),
-            ])
-            .args(["--stats", &format!("{out}.json")])
-            .args(extra)
-            .output()
-            .unwrap()
+        render_head48(d, &["--tf", "edited.json", "--weights", "3,1"], extra, out)
     };
     let o = render(&["--whole"], "w");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // Plain POF culling bounds with the table: refused, nothing written.
-    for plain in [
-        &["--pof", "p.pof"][..],
-        &["--pof", "p.pof", "--cull", "pof-set"],
-    ] {
-        let o = render(plain, "plain");
-        assert_eq!(o.status.code(), Some(2), "{plain:?}");
-        let e = String::from_utf8_lossy(&o.stderr);
-        assert!(e.contains("p.pof") && e.contains("bases"), "{e}");
-        assert!(!d.join("plain.png").exists() && !d.join("plain.raw").exists());
-    }
+    assert_plain_pof_refused(d, &render, "p.pof", "bases");
     // Verified, the stale table only predicts: a warning, and the rule holds.
     for (name, args) in [
         ("pof-verify", &["--cull", "pof", "--verify"][..]),
@@ -524,29 +525,10 @@ fn typical_pofs_predict_verified_frames_and_plain_pof_refuses_them() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let render = |extra: &[&str], out: &str| {
-        pofvr()
-            .current_dir(d)
-            .args(["render", "phantom:head:48", "--brick", "8"])
-            .args(["--size", "64x56", "--view", "30,20", "--quiet"])
-            .args(["--out", &format!("{out}.png")])
-            .args(["--out-raw", &format!("{out}.raw")])
-            .args(extra)
-            .output()
-            .unwrap()
-    };
+    let render = |extra: &[&str], out: &str| render_head48(d, &[], extra, out);
     let o = render(&["--whole"], "w");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for plain in [
-        &["--pof", "t.pof"][..],
-        &["--pof", "t.pof", "--cull", "pof-set"],
-    ] {
-        let o = render(plain, "plain");
-        assert_eq!(o.status.code(), Some(2), "{plain:?}");
-        let e = String::from_utf8_lossy(&o.stderr);
-        assert!(e.contains("t.pof") && e.contains("typical"), "{e}");
-        assert!(!d.join("plain.png").exists() && !d.join("plain.raw").exists());
-    }
+    assert_plain_pof_refused(d, &render, "t.pof", "typical");
     for (name, args) in [
         ("pof-verify", &["--cull", "pof", "--verify"][..]),
         (
