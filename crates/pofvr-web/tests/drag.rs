@@ -7,22 +7,10 @@ mod common;
 use std::sync::Arc;
 
 use common::{assert_rule, frame};
-use pofvr::render::families;
-use pofvr::volume::phantom::Phantom;
-use pofvr::Scene;
-use pofvr_web::{Viewer, ViewerOptions};
+use pofvr_web::Viewer;
 
 fn viewer(n: usize) -> Arc<Viewer> {
-    let vol = Phantom::SheppLogan.generate(n);
-    let scene = Scene::builder(vol, families::for_phantom(Phantom::SheppLogan))
-        .brick_size(8)
-        .build()
-        .unwrap();
-    Arc::new(Viewer::new(
-        Arc::new(scene),
-        "phantom:head",
-        &ViewerOptions::default(),
-    ))
+    common::head_viewer(n, 8)
 }
 
 // A heavy skin weight makes the outer bricks opaque: the prediction culls, so it matters.

@@ -2,27 +2,17 @@
 //! normalisation by a test client): clients dragging at once, path traversal, malformed,
 //! repeated and oversized parameters, and clients that hang up mid-frame.
 
+mod common;
+
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use pofvr::render::families;
-use pofvr::volume::phantom::Phantom;
-use pofvr::Scene;
-use pofvr_web::{router, Viewer, ViewerOptions};
+use pofvr_web::{router, Viewer};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 fn viewer(n: usize) -> Arc<Viewer> {
-    let vol = Phantom::SheppLogan.generate(n);
-    let scene = Scene::builder(vol, families::for_phantom(Phantom::SheppLogan))
-        .brick_size(16)
-        .build()
-        .unwrap();
-    Arc::new(Viewer::new(
-        Arc::new(scene),
-        "phantom:head",
-        &ViewerOptions::default(),
-    ))
+    common::head_viewer(n, 16)
 }
 
 async fn spawn_server(v: Arc<Viewer>) -> SocketAddr {

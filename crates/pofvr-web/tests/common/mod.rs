@@ -1,12 +1,35 @@
-//! What the drag tests share: one frame through the router, and the threshold rule on its
-//! PNG.
+//! What the viewer's integration tests share: a phantom viewer, one frame through the
+//! router, and the threshold rule on its PNG.
+
+// Each test crate that includes this module uses part of it.
+#![allow(dead_code)]
 
 use std::sync::Arc;
+
+use pofvr::render::families;
+use pofvr::volume::phantom::Phantom;
+use pofvr::Scene;
+use pofvr_web::ViewerOptions;
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use pofvr_web::{router, Viewer, STATS_HEADER};
 use tower::ServiceExt;
+
+/// A viewer of the `n`³ Shepp–Logan head with its family, bricks of `brick`, default
+/// options.
+pub(crate) fn head_viewer(n: usize, brick: usize) -> Arc<Viewer> {
+    let vol = Phantom::SheppLogan.generate(n);
+    let scene = Scene::builder(vol, families::for_phantom(Phantom::SheppLogan))
+        .brick_size(brick)
+        .build()
+        .unwrap();
+    Arc::new(Viewer::new(
+        Arc::new(scene),
+        "phantom:head",
+        &ViewerOptions::default(),
+    ))
+}
 
 /// One frame: its stats and RGBA8 pixels.
 pub(crate) async fn frame(v: &Arc<Viewer>, query: &str) -> (serde_json::Value, Vec<u8>) {
