@@ -1,19 +1,10 @@
 //! End-to-end tests of the `pofvr` binary: outputs, contracts and bad input.
 
+mod common;
+
+use common::{pofvr, stderr};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn pofvr(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pofvr"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run pofvr")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use std::process::Output;
 
 fn files_in(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)

@@ -1,20 +1,11 @@
 //! End-to-end tests of the data inputs: the body phantom, DICOM series, Zarr stores and
 //! `pofvr convert`.
 
+mod common;
+
+use common::{pofvr, stderr};
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn pofvr(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pofvr"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run pofvr")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use std::process::Output;
 
 fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()

@@ -2,24 +2,14 @@
 //! CSV numbers agree with what `pofvr render --stats` reports for the same view and mode,
 //! and the conservativeness audit finds no pixel breaking the rule.
 
+mod common;
+
+use common::{pofvr, stderr};
 use std::collections::HashMap;
 use std::path::Path;
-use std::process::{Command, Output};
 
 const VOLUME: &str = "phantom:head:64";
 const SIZE: &str = "96x96";
-
-fn pofvr(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pofvr"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run pofvr")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// A CSV file as rows of column → cell.
 fn read_csv(path: &Path) -> Vec<HashMap<String, String>> {

@@ -1,16 +1,10 @@
 //! `pofvr render --frames N --orbit DEG` in one process: an orbit about Y, one stats entry
 //! per frame, and each process's memory in `--stats`.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
-fn pofvr(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pofvr"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run pofvr")
-}
+use common::pofvr;
+use std::path::Path;
 
 fn floats(path: &Path) -> Vec<f32> {
     std::fs::read(path)

@@ -1,6 +1,9 @@
 //! `--memory-budget SIZE` on `render`, `serve` and `experiment`: one parser and one message,
 //! the same images and figures as without a budget, and what each frame read.
 
+mod common;
+
+use common::{pofvr, stderr};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
@@ -14,18 +17,6 @@ const ROOMY: &str = "400K";
 
 /// A budget that holds a few bricks only: every frame reads its bricks again.
 const TIGHT: &str = "16K";
-
-fn pofvr(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pofvr"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run pofvr")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// Writes the volume (`v.raw`) and a one-basis family (`tf.json`) into `dir`.
 fn write_volume(dir: &Path) {

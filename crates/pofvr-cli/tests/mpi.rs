@@ -7,6 +7,9 @@
 //! itself, which cargo builds (with the feature) only for this crate's tests.
 #![cfg(feature = "mpi")]
 
+mod common;
+
+use common::pofvr;
 use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
@@ -85,14 +88,6 @@ fn run_with_deadline(np: usize, args: &[&str], dir: &Path, deadline: Duration) -
 }
 
 /// `pofvr ARGS` in this process's ranks (no MPI launcher in the environment).
-fn pofvr(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pofvr"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run pofvr")
-}
-
 fn text(out: &Output) -> String {
     format!(
         "status {:?}\nstdout:\n{}\nstderr:\n{}",
