@@ -141,11 +141,9 @@ impl RayCaster<'_> {
         }
         let step = self.settings().step;
         let vbox = self.volume_box();
-        let alpha: Vec<f32> = p.cls.rgba.iter().map(|s| s[3]).collect();
         let tab = PacketTables {
             leap: occ.leaps(),
             cells: occ.dims().map(|n| n as i32),
-            alpha: &alpha,
         };
         let none = IndexRay {
             o: [0.0; 3],
