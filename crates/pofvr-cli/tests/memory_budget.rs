@@ -209,6 +209,42 @@ fn pof_build_under_a_budget_streams_the_volume_and_writes_the_same_file() {
 }
 
 #[test]
+fn what_samples_the_whole_volume_is_refused_under_a_budget_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_volume(d);
+    for extra in [&["--whole"][..], &["--cull", "exact"][..]] {
+        let mut args = vec!["render"];
+        args.extend(VOL);
+        args.extend([
+            "--size",
+            "32x32",
+            "--out",
+            "o.png",
+            "--memory-budget",
+            ROOMY,
+        ]);
+        args.extend(extra);
+        let o = pofvr(&args, d);
+        assert!(!o.status.success(), "{extra:?} succeeded");
+        let e = stderr(&o);
+        assert!(
+            e.contains("v.raw") && e.contains("does not fit the memory budget"),
+            "{extra:?}: {e}"
+        );
+        assert!(!d.join("o.png").exists(), "{extra:?} left an image");
+        // Without the budget the same frame renders.
+        let mut args = vec!["render"];
+        args.extend(VOL);
+        args.extend(["--size", "32x32", "--out", "o.png"]);
+        args.extend(extra);
+        let o = pofvr(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        std::fs::remove_file(d.join("o.png")).unwrap();
+    }
+}
+
+#[test]
 fn the_experiment_under_a_budget_gives_the_same_figures_and_reports_its_reads() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -68,6 +68,6 @@ pub use settings::{
     PofMethod, PofSettings, JOINT_MAX_BASES, SAMPLED_MARGIN, SAMPLED_PHASES, SAMPLED_PITCH,
     TYPICAL_PITCH, TYPICAL_QUANTILE,
 };
-pub use stream_build::{build_streamed, StreamedBuild};
+pub use stream_build::{build_streamed, build_streamed_in_memory, StreamedBuild};
 pub use table::PofTable;
 pub use view_grid::{angles, direction};

@@ -16,13 +16,14 @@
 
 use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{PoisonError, RwLock};
 
 use rayon::prelude::*;
 
 use super::build::{with_plan, Plan};
-use super::{file, PofError, PofSettings};
+use super::file::{self, Bytes};
+use super::{PofError, PofSettings, PofTable};
 use crate::brick::{BrickGrid, BrickId};
 use crate::io::WriteError;
 use crate::render::{SampledTf, TransferFunction};
@@ -141,6 +142,10 @@ pub fn build_streamed(
             .suffix(".tmp")
             .tempfile_in(dir)
             .map_err(wrap)?;
+        let hooks = Hooks {
+            progress,
+            cancel: None,
+        };
         let report = stream(
             volume,
             source,
@@ -148,7 +153,7 @@ pub fn build_streamed(
             &plan,
             budget,
             (tmp.as_file_mut(), out),
-            progress,
+            &hooks,
         )?;
         tmp.as_file().sync_data().map_err(wrap)?;
         tmp.persist(out).map_err(|e| wrap(e.error))?;
@@ -156,16 +161,63 @@ pub fn build_streamed(
     })
 }
 
-/// The build proper: records to `file` after its head, then the head.
-fn stream(
+/// As [`build_streamed`], the table built in memory instead of written to a file: the
+/// volume is still read slab by slab from `source` (never sampled through its mapping),
+/// and the table is held once (the in-memory build holds its records three times on the
+/// way). Stops between bricks once `cancel` is set, with [`PofError::Cancelled`].
+///
+/// # Errors
+/// As [`build_streamed`], plus [`PofError::Cancelled`].
+#[allow(clippy::too_many_arguments)]
+pub fn build_streamed_in_memory(
+    volume: &Volume,
+    source: &BrickSource,
+    grid: &BrickGrid,
+    tf: &TransferFunction,
+    sampled: &SampledTf,
+    settings: &PofSettings,
+    budget: u64,
+    progress: &(dyn Fn(u64, u64) + Sync),
+    cancel: Option<&AtomicBool>,
+) -> Result<(PofTable, StreamedBuild), PofError> {
+    let slabs = SlabVoxels::default();
+    with_plan(volume, &slabs, grid, tf, sampled, settings, |plan| {
+        let mut image = std::io::Cursor::new(Vec::new());
+        let hooks = Hooks { progress, cancel };
+        let name = Path::new("<built in memory>");
+        let report = stream(
+            volume,
+            source,
+            &slabs,
+            &plan,
+            budget,
+            (&mut image, name),
+            &hooks,
+        )?;
+        let table = file::from_bytes(Bytes::Owned(image.into_inner()), name.display().to_string())?;
+        Ok((table, report))
+    })
+}
+
+/// What a streamed build reports to, and what stops it.
+struct Hooks<'a> {
+    progress: &'a (dyn Fn(u64, u64) + Sync),
+    cancel: Option<&'a AtomicBool>,
+}
+
+/// The build proper: records to `file` after its head, then the head (`out` names it in
+/// errors).
+fn stream<W: Write + Seek>(
     volume: &Volume,
     source: &BrickSource,
     slabs: &SlabVoxels,
     plan: &Plan<'_>,
     budget: u64,
-    (file, out): (&mut std::fs::File, &Path),
-    progress: &(dyn Fn(u64, u64) + Sync),
+    (file, out): (&mut W, &Path),
+    hooks: &Hooks<'_>,
 ) -> Result<StreamedBuild, PofError> {
+    let progress = hooks.progress;
+    let cancelled = || hooks.cancel.is_some_and(|c| c.load(Ordering::Relaxed));
     let Plan {
         ctx,
         meta,
@@ -234,12 +286,21 @@ fn stream(
             let records: Vec<Option<Vec<u8>>> = ids
                 .par_iter()
                 .map(|id| {
+                    if cancelled() {
+                        return None;
+                    }
                     let r = ctx.brick_record(*id);
                     progress(counter.fetch_add(1, Ordering::Relaxed) + 1, total);
                     r
                 })
                 .collect();
             *slabs.0.write().unwrap_or_else(PoisonError::into_inner) = None;
+            if cancelled() {
+                return Err(PofError::Cancelled {
+                    done: counter.load(Ordering::Relaxed),
+                    total,
+                });
+            }
             let held: usize = records.iter().flatten().map(Vec::len).sum();
             report.slab_peak_bytes = report.slab_peak_bytes.max(slab_bytes + held as u64);
             for (id, rec) in ids.iter().zip(&records) {
