@@ -11,14 +11,19 @@ use crate::volume::phantom::Phantom;
 use crate::volume::{raw, Endian, RawSpec, Volume, VoxelData};
 use crate::with_voxels;
 
-fn tmp(name: &str) -> PathBuf {
+pub(super) fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("pofvr-store-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
 
 /// `volume` written as a raw file with `offset` bytes of header, in `endian` order.
-fn write_raw(volume: &Volume, dir: &Path, offset: usize, endian: Endian) -> (PathBuf, RawSpec) {
+pub(super) fn write_raw(
+    volume: &Volume,
+    dir: &Path,
+    offset: usize,
+    endian: Endian,
+) -> (PathBuf, RawSpec) {
     let mut bytes = vec![0xAB; offset];
     with_voxels!(volume.data(), v => {
         for x in v {
