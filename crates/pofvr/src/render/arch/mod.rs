@@ -95,6 +95,36 @@ pub(crate) fn march_skip<T: Gather>(
     None
 }
 
+/// Whether [`march_packet`] runs for `p` and `tri`: the AVX2 loop over packets of eight
+/// rays, where the CPU has AVX2 and the scalar loop is not asked for.
+#[inline(always)]
+pub(crate) fn packets<T: Gather>(p: &MarchParams<'_>, tri: &TrilinearSampler<'_, T>) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return !p.scalar && p.avx2 && x86_64::avx2::fits(tri);
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (p, tri);
+        false
+    }
+}
+
+/// Marches the eight rays of `pk` through the whole volume, each as [`march`] would, bit
+/// for bit, leaving out the samples in the empty cells of `tab`'s occupancy. Only where
+/// [`packets`] holds (it returns `None`, having done nothing, elsewhere).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn march_packet<T: Gather>(
+    p: &MarchParams<'_>,
+    tri: &TrilinearSampler<'_, T>,
+    tab: &x86_64::packet::PacketTables<'_>,
+    pk: &mut x86_64::packet::Packet,
+) -> Option<x86_64::packet::PacketStats> {
+    if p.scalar {
+        return None;
+    }
+    x86_64::march_packet(p, tri, tab, pk)
+}
+
 /// The loop [`march`] takes with `p`: "avx2", "sse2" or "scalar".
 pub(crate) fn name(p: &MarchParams<'_>) -> &'static str {
     match (p.scalar, p.avx2, cfg!(target_arch = "x86_64")) {

@@ -215,7 +215,7 @@ pub(crate) struct Acc {
 /// the gradients `g` (index space) with the volume's `spacing` and the ray's `dir`.
 #[target_feature(enable = "avx2")]
 #[inline]
-fn lambert8(g: [__m256; 3], spacing: [__m256; 3], dir: [__m256; 3]) -> __m256 {
+pub(crate) fn lambert8(g: [__m256; 3], spacing: [__m256; 3], dir: [__m256; 3]) -> __m256 {
     use std::arch::x86_64::{
         _mm256_andnot_ps, _mm256_blendv_ps, _mm256_cmp_ps, _mm256_div_ps, _mm256_sqrt_ps,
         _CMP_LE_OQ,

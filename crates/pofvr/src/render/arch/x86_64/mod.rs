@@ -2,12 +2,14 @@
 //! for the last cells of the data, where the eight-lane gather would read past the end.
 
 pub(crate) mod avx2;
+pub(crate) mod packet;
 pub(crate) mod sse2;
 
 use super::{Gather, MarchParams};
 use crate::render::lattice::IndexRay;
 use crate::render::sampler::TrilinearSampler;
 use crate::render::skip::Skip;
+use packet::{Packet, PacketStats, PacketTables};
 
 /// [`super::march`].
 #[inline(always)]
@@ -66,5 +68,28 @@ pub(crate) fn march_skip<T: Gather>(
         // The last cells of the data: the one-sample loop finishes the ray, without
         // skipping (a few samples at most).
         Some(k) => n + sse2::march(p, tri, ray, (k, range.1), acc),
+    })
+}
+
+/// [`super::march_packet`] where the AVX2 loop runs: `None` (having done nothing)
+/// elsewhere.
+#[inline(always)]
+pub(crate) fn march_packet<T: Gather>(
+    p: &MarchParams<'_>,
+    tri: &TrilinearSampler<'_, T>,
+    tab: &PacketTables<'_>,
+    pk: &mut Packet,
+) -> Option<PacketStats> {
+    if !(p.avx2 && avx2::fits(tri)) {
+        return None;
+    }
+    // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked; the tables
+    // are the caller's, built for this volume and classification.
+    Some(unsafe {
+        if p.shade.is_some() {
+            packet::march8::<T, true>(p, tri, tab, pk)
+        } else {
+            packet::march8::<T, false>(p, tri, tab, pk)
+        }
     })
 }
