@@ -11,14 +11,19 @@ use crate::volume::phantom::Phantom;
 use crate::volume::{raw, Endian, RawSpec, Volume, VoxelData};
 use crate::with_voxels;
 
-fn tmp(name: &str) -> PathBuf {
+pub(super) fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("pofvr-store-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
 
 /// `volume` written as a raw file with `offset` bytes of header, in `endian` order.
-fn write_raw(volume: &Volume, dir: &Path, offset: usize, endian: Endian) -> (PathBuf, RawSpec) {
+pub(super) fn write_raw(
+    volume: &Volume,
+    dir: &Path,
+    offset: usize,
+    endian: Endian,
+) -> (PathBuf, RawSpec) {
     let mut bytes = vec![0xAB; offset];
     with_voxels!(volume.data(), v => {
         for x in v {
@@ -198,14 +203,18 @@ fn budgeted_frames_equal_unbudgeted_ones_in_every_cull_mode_and_rank_count() {
         .unwrap();
     assert_eq!(held.grid().ranges(), plain.grid().ranges());
     let table = held.build_pofs(&build).unwrap();
+    // Built from the store's slabs, not the mapping: the same table, byte for byte.
+    let (a, b) = (dir.join("plain.pof"), dir.join("held.pof"));
+    plain.build_pofs(&build).unwrap().save(&a).unwrap();
+    table.save(&b).unwrap();
+    assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
     let held = held.with_pofs(table).unwrap();
     assert!(held.store().is_some_and(|s| s.source().is_file()));
     let cam = camera(&vol, 30.0, 48);
     let base = FrameRequest::new(&cam);
     for ranks in [1, 3] {
-        let modes: [(Cull<'_>, Cull<'_>); 6] = [
+        let modes: [(Cull<'_>, Cull<'_>); 5] = [
             (Cull::None, Cull::None),
-            (Cull::Exact, Cull::Exact),
             (plain.default_cull(), held.default_cull()),
             (
                 Cull::PofSet(plain.pofs().unwrap()),
@@ -261,6 +270,19 @@ fn budgeted_frames_equal_unbudgeted_ones_in_every_cull_mode_and_rank_count() {
             assert_eq!(want.stats.bytes_read, 0);
         }
     }
+    // What samples the whole lattice would map the whole file: refused, naming it.
+    for (what, e) in [
+        (
+            "exact",
+            held.render(&base.clone().cull(Cull::Exact)).unwrap_err(),
+        ),
+        ("whole", held.render_reference(&base).unwrap_err()),
+    ] {
+        let e = e.to_string();
+        assert!(e.contains(&path.display().to_string()), "{what}: {e}");
+        assert!(e.contains("does not fit the memory budget"), "{what}: {e}");
+    }
+    assert!(plain.render(&base.clone().cull(Cull::Exact)).is_ok());
     // Without an engine named, a budgeted scene renders with the brick engine.
     let none = held.render(&base).unwrap();
     assert_eq!(none.stats.engine, "bricks");
