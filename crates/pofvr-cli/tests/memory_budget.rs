@@ -209,6 +209,39 @@ fn pof_build_under_a_budget_streams_the_volume_and_writes_the_same_file() {
 }
 
 #[test]
+fn pof_build_under_a_budget_reads_a_zarr_level_by_its_chunks_and_writes_the_same_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_volume(d);
+    let mut args = vec!["convert"];
+    args.extend(&VOL[..5]);
+    args.push("v.zarr");
+    let o = pofvr(&args, d);
+    assert!(o.status.success(), "convert: {}", stderr(&o));
+    let build = |out: &str, extra: &[&str]| {
+        let mut args = vec!["pof", "build", "v.zarr", "--level", "0", "--tf", "tf.json"];
+        args.extend(["--method", "typical", "--views", "4,6", "-o", out]);
+        args.extend(extra);
+        let o = pofvr(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        (std::fs::read(d.join(out)).unwrap(), stderr(&o))
+    };
+    let (whole, _) = build("whole.pof", &[]);
+    let (held, line) = build("held.pof", &["--memory-budget", ROOMY]);
+    assert!(held == whole, "the budgeted build's file differs");
+    assert!(
+        line.contains("zarr chunks") && line.contains("slabs read"),
+        "{line}"
+    );
+    // The budgeted table is the raw file's too: the same voxels.
+    let mut args = vec!["pof", "build"];
+    args.extend(VOL);
+    args.extend(["--method", "typical", "--views", "4,6", "-o", "raw.pof"]);
+    assert!(pofvr(&args, d).status.success());
+    assert!(std::fs::read(d.join("raw.pof")).unwrap() == held);
+}
+
+#[test]
 fn what_samples_the_whole_volume_is_refused_under_a_budget_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

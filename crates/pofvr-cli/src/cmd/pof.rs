@@ -352,7 +352,7 @@ fn build_within(
         r.computed_bricks as f64 * views as f64 / core_seconds.max(1e-9),
     );
     eprintln!(
-        "memory budget {:.0} MB ({}): {} slabs read, {:.1} MB read ({:.0} % of the volume's {:.1} MB), largest slab with its records {:.1} MB, peak RSS {:.1} MB",
+        "memory budget {:.1} MB ({}): {} slabs read, {:.1} MB read ({:.0} % of the volume's {:.1} MB), largest slab with its records {:.1} MB, peak RSS {:.1} MB",
         budget as f64 / 1e6,
         source.kind(),
         r.slabs_read,

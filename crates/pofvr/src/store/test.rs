@@ -143,6 +143,41 @@ fn the_cache_keeps_its_budget_evicting_the_least_recently_used() {
 }
 
 #[test]
+fn bytes_reserved_elsewhere_come_out_of_the_caches_budget() {
+    let vol = head_i16();
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let one = (0..3)
+        .map(|i| {
+            BrickCopy::apron_box(&grid, BrickId(i))
+                .1
+                .iter()
+                .product::<usize>() as u64
+                * 2
+        })
+        .max()
+        .unwrap();
+    // Room for three bricks, one of which is reserved (the proxy's share).
+    let cache = BrickCache::new(BrickSource::Memory, 3 * one);
+    cache.reserve(one);
+    assert_eq!(cache.brick_budget(), 2 * one);
+    let frame = ReadCounts::default();
+    for i in 0..3 {
+        cache.get(&vol, &grid, BrickId(i), &frame).unwrap();
+    }
+    let s = cache.summary();
+    assert_eq!(s.reserved_bytes, one);
+    assert!(s.cache_peak_bytes <= 2 * one, "{s:?}");
+    assert_eq!(s.not_cached, 1, "{s:?}");
+    // Reserving the whole budget leaves the cache nothing: bricks are read and passed on.
+    cache.reserve(2 * one);
+    assert_eq!(cache.brick_budget(), 0);
+    let next = ReadCounts::default();
+    cache.get(&vol, &grid, BrickId(3), &next).unwrap();
+    cache.get(&vol, &grid, BrickId(3), &next).unwrap();
+    assert_eq!((next.bricks_read(), next.cache_hits()), (2, 0));
+}
+
+#[test]
 fn frames_that_need_more_than_the_budget_find_a_budgets_worth_of_bricks_next_time() {
     let vol = head_i16();
     let grid = BrickGrid::from_volume(&vol, 8).unwrap();
@@ -289,7 +324,14 @@ fn budgeted_frames_equal_unbudgeted_ones_in_every_cull_mode_and_rank_count() {
     let want = plain.render(&base.clone().engine(Engine::Bricks)).unwrap();
     assert_eq!(none.image.pixels(), want.image.pixels());
     assert_eq!(plain.render(&base).unwrap().stats.engine, "march");
-    assert!(held.store().unwrap().summary().evictions > 0);
+    let summary = held.store().unwrap().summary();
+    assert!(summary.evictions + summary.not_cached > 0, "{summary:?}");
+    // The verified frames' proxy, and the extinction it caches, are charged to the budget.
+    let cells: usize = vol.dims().iter().map(|n| n.div_ceil(4)).product();
+    assert!(
+        summary.reserved_bytes >= 4 * cells as u64 * 2,
+        "{summary:?}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 

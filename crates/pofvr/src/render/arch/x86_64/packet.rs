@@ -25,10 +25,10 @@
 use std::arch::x86_64::{
     __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_ps, _mm256_and_si256,
     _mm256_andnot_si256, _mm256_blendv_ps, _mm256_castps_si256, _mm256_castsi256_ps, _mm256_cmp_ps,
-    _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32, _mm256_div_ps, _mm256_loadu_si256,
-    _mm256_max_epi32, _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps, _mm256_movemask_ps,
-    _mm256_mul_ps, _mm256_mullo_epi32, _mm256_or_si256, _mm256_set1_epi32, _mm256_set1_ps,
-    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32,
+    _mm256_cmpeq_epi32, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32, _mm256_div_ps,
+    _mm256_loadu_si256, _mm256_max_epi32, _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps,
+    _mm256_movemask_ps, _mm256_mul_ps, _mm256_mullo_epi32, _mm256_or_si256, _mm256_set1_epi32,
+    _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32,
     _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ,
     _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
 };
@@ -85,10 +85,14 @@ fn within(a: __m256i, x: __m256i, b: __m256i) -> __m256i {
 #[target_feature(enable = "avx2")]
 #[inline]
 fn hmin(v: __m256i) -> i32 {
-    let mut a = [0i32; LANES];
-    // SAFETY: `a` holds eight i32.
-    unsafe { _mm256_storeu_si256(a.as_mut_ptr().cast(), v) };
-    a.iter().copied().min().unwrap_or(i32::MAX)
+    use std::arch::x86_64::{
+        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm_cvtsi128_si32, _mm_min_epi32,
+        _mm_shuffle_epi32,
+    };
+    let m = _mm_min_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
+    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
+    _mm_cvtsi128_si32(m)
 }
 
 /// Marches `pk` front to back through the volume of `tri`, skipping the empty cells of
@@ -171,6 +175,11 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(_mm256_cvttps_epi32(c))
         })
     };
+    // The occupancy cells of the last sample looked up (none yet), their entries, and
+    // which of them are occupied, as bits.
+    let mut last_idx = _mm256_set1_epi32(-1);
+    let mut lv = [0i32; LANES];
+    let mut occ_bits = 0u32;
     loop {
         let kv = _mm256_set1_epi32(k);
         // Lanes whose ray claims sample k and has not terminated.
@@ -209,18 +218,22 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             ),
             cell[0],
         );
-        let mut ci = [0u32; LANES];
-        // SAFETY: `ci` holds eight u32.
-        unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
-        // Scalar loads: the lanes' entries are wanted as bits, and eight byte loads cost
-        // less than a gather.
-        let mut lv = [0i32; LANES];
-        let mut occ_bits = 0u32;
-        for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
-            // SAFETY: every lane's cell is inside the grid (positions are clamped).
-            let e = unsafe { *tab.leap.get_unchecked(c as usize) };
-            *l = i32::from(e);
-            occ_bits |= u32::from(e & OCCUPIED != 0) << j;
+        // The entries of the previous sample's cells serve while no lane changed cell
+        // (most samples, as a cell is several samples long).
+        if bits(_mm256_cmpeq_epi32(idx, last_idx)) != 0xFF {
+            last_idx = idx;
+            let mut ci = [0u32; LANES];
+            // SAFETY: `ci` holds eight u32.
+            unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
+            // Scalar loads: the lanes' entries are wanted as bits, and eight byte loads
+            // cost less than a gather.
+            occ_bits = 0;
+            for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
+                // SAFETY: every lane's cell is inside the grid (positions are clamped).
+                let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+                *l = i32::from(e);
+                occ_bits |= u32::from(e & OCCUPIED != 0) << j;
+            }
         }
         if occ_bits & live_bits == 0 {
             // SAFETY: `lv` holds eight i32.
@@ -440,6 +453,9 @@ fn leap_end(
     // Settled by one sample where a rounding put the estimate past a face.
     let kb1 = _mm256_sub_epi32(kb, one);
     let in1 = inside(kb1);
+    if bits(in1) == 0xFF {
+        return kb;
+    }
     let in2 = inside(_mm256_sub_epi32(kb1, one));
     let fallback = blend_i(_mm256_add_epi32(kv, one), kb1, in2);
     blend_i(fallback, kb, in1)
