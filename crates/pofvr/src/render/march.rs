@@ -12,11 +12,15 @@
 //! only once the last sample of the leap is found, by the sampler's own cell, inside the
 //! cube: then every sample between is inside too, and classifies to zero opacity, which
 //! composites to nothing. Everything else goes, in order and with the same accumulator,
-//! through the same sample loops ([`super::arch::march`], AVX2 or SSE2, scalar on request),
-//! so the image equals the reference bit for bit. Marching a sample of zero opacity changes
+//! through the same float operations as the reference, so the image equals it bit for bit.
+//!
+//! Where the CPU has AVX2, the frame goes in packets of eight rays (4 × 2 pixels), one
+//! ray per lane, through `arch/x86_64/packet.rs`: composited lane-wise, and leaping for
+//! the packet as a whole by the rule above evaluated lane-wise. Elsewhere (SSE2, or the
+//! scalar loop on request) each ray walks alone: marching a sample of zero opacity changes
 //! nothing either, so the walk marches through occupied cells, and the empty cells next to
-//! them, in chunks of samples without looking at each cell: the estimates cost a cell
-//! lookup and a few float operations per leap, and the exact test two sample cells.
+//! them, in chunks of samples through the sample loops ([`super::arch::march`]) without
+//! looking at each cell.
 
 use rayon::prelude::*;
 
@@ -141,11 +145,9 @@ impl RayCaster<'_> {
         }
         let step = self.settings().step;
         let vbox = self.volume_box();
-        let alpha: Vec<f32> = p.cls.rgba.iter().map(|s| s[3]).collect();
         let tab = PacketTables {
             leap: occ.leaps(),
             cells: occ.dims().map(|n| n as i32),
-            alpha: &alpha,
         };
         let none = IndexRay {
             o: [0.0; 3],
@@ -217,9 +219,8 @@ impl RayCaster<'_> {
         None
     }
 
-    /// Walks samples `k0..k1` of `ray` through the cells of `skip` into `acc`. Where the
-    /// AVX2 loop runs, it tests the occupancy itself, eight samples at a time, and leaps
-    /// from within ([`super::arch::march_skip`]). Elsewhere the walk goes from sample to
+    /// Walks samples `k0..k1` of `ray` through the cells of `skip` into `acc`, where the
+    /// packet loop does not run (SSE2 or the scalar loop): the walk goes from sample to
     /// sample: at sample `k`, its cell (the sampler's own) and that cell's
     /// [`Occupancy::leaps`] give a cube of empty cells around it, and
     /// [`Skip::leap_end`] the first sample past it; everything else is marched, in order,
@@ -234,10 +235,6 @@ impl RayCaster<'_> {
         st: &mut MarchStats,
     ) {
         let ert = self.settings().ert;
-        if let Some(n) = arch::march_skip(&self.params(), tri, ray, (k0, k1), acc, skip) {
-            st.rays.samples += n;
-            return;
-        }
         let march = |from: i32, to: i32, acc: &mut [f32; 4], st: &mut MarchStats| {
             st.rays.samples += self.march(tri, ray, (from, to), acc);
             acc[3] >= ert

@@ -29,9 +29,6 @@ pub(crate) const CELL_SHIFT: u32 = 2;
 /// The largest chessboard distance kept for an empty cell: a leap crosses at most
 /// `2·EMPTY_CAP − 1` cells along an axis. Each unit costs one pass of the rebuild.
 const EMPTY_CAP: u8 = 8;
-/// Bytes past the last cell that [`Occupancy::leaps`] holds (zero): the packet loop reads
-/// each lane's entry as the low byte of a 32-bit gather.
-pub(crate) const LEAP_PAD: usize = 3;
 /// The bit of an [`Occupancy::leaps`] entry that marks an occupied cell.
 pub(crate) const OCCUPIED: u8 = 0x80;
 
@@ -227,12 +224,11 @@ impl Occupancy {
             .collect();
         let cells = ranges.cells;
         let to_occupied = chessboard(&cell, true, cells, EMPTY_CAP);
-        let mut leap: Vec<u8> = cell
+        let leap: Vec<u8> = cell
             .par_iter()
             .zip(&to_occupied)
             .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
             .collect();
-        leap.extend([0; LEAP_PAD]);
         Occupancy { cells, cell, leap }
     }
 
@@ -250,7 +246,7 @@ impl Occupancy {
         self.cell[(c[2] as usize * cy + c[1] as usize) * cx + c[0] as usize]
     }
 
-    /// Every cell's leap entry (see the field), x fastest, then [`LEAP_PAD`] zeros.
+    /// Every cell's leap entry (see the field), x fastest.
     #[must_use]
     pub(crate) fn leaps(&self) -> &[u8] {
         &self.leap

@@ -11,7 +11,6 @@ pub(crate) mod x86_64;
 
 use super::lattice::IndexRay;
 use super::sampler::TrilinearSampler;
-use super::skip::Skip;
 use super::transfer_function::ClassifierView;
 #[cfg(not(target_arch = "x86_64"))]
 use crate::volume::Voxel;
@@ -69,30 +68,6 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
         return x86_64::march(p, tri, ray, range, acc);
     }
     generic::march(p, tri, ray, range, acc)
-}
-
-/// Composites samples `range` of `ray` behind `acc` as [`march`] does, bit for bit,
-/// leaving out the samples in the empty cells of `skip`'s occupancy (counted in
-/// `skip.skipped`): the AVX2 loop tests each group of eight samples' cells before it gathers
-/// their corners, and leaps over cubes of empty cells from within. Returns the samples
-/// taken, or `None` (having done nothing) where the AVX2 loop does not run; the caller then
-/// walks the occupancy itself.
-#[inline(always)]
-pub(crate) fn march_skip<T: Gather>(
-    p: &MarchParams<'_>,
-    tri: &TrilinearSampler<'_, T>,
-    ray: &IndexRay,
-    range: (i32, i32),
-    acc: &mut [f32; 4],
-    skip: &mut Skip<'_>,
-) -> Option<u64> {
-    #[cfg(target_arch = "x86_64")]
-    if !p.scalar {
-        return x86_64::march_skip(p, tri, ray, range, acc, skip);
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (tri, ray, range, acc, skip);
-    None
 }
 
 /// Whether [`march_packet`] runs for `p` and `tri`: the AVX2 loop over packets of eight

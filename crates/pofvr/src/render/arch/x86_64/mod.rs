@@ -8,7 +8,6 @@ pub(crate) mod sse2;
 use super::{Gather, MarchParams};
 use crate::render::lattice::IndexRay;
 use crate::render::sampler::TrilinearSampler;
-use crate::render::skip::Skip;
 use packet::{Packet, PacketStats, PacketTables};
 
 /// [`super::march`].
@@ -25,9 +24,9 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
         // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked.
         let (n, rest) = unsafe {
             if p.shade.is_some() {
-                avx2::march::<T, COPY, true, false>(p, tri, ray, range, &mut a, None)
+                avx2::march::<T, COPY, true>(p, tri, ray, range, &mut a)
             } else {
-                avx2::march::<T, COPY, false, false>(p, tri, ray, range, &mut a, None)
+                avx2::march::<T, COPY, false>(p, tri, ray, range, &mut a)
             }
         };
         avx2::store(&a, acc);
@@ -38,37 +37,6 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
         };
     }
     sse2::march(p, tri, ray, range, acc)
-}
-
-/// [`super::march_skip`] where the AVX2 loop runs: `None` elsewhere.
-#[inline(always)]
-pub(crate) fn march_skip<T: Gather>(
-    p: &MarchParams<'_>,
-    tri: &TrilinearSampler<'_, T>,
-    ray: &IndexRay,
-    range: (i32, i32),
-    acc: &mut [f32; 4],
-    skip: &mut Skip<'_>,
-) -> Option<u64> {
-    if !(p.avx2 && avx2::fits(tri)) {
-        return None;
-    }
-    let mut a = avx2::load(acc);
-    // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked.
-    let (n, rest) = unsafe {
-        if p.shade.is_some() {
-            avx2::march::<T, false, true, true>(p, tri, ray, range, &mut a, Some(skip))
-        } else {
-            avx2::march::<T, false, false, true>(p, tri, ray, range, &mut a, Some(skip))
-        }
-    };
-    avx2::store(&a, acc);
-    Some(match rest {
-        None => n,
-        // The last cells of the data: the one-sample loop finishes the ray, without
-        // skipping (a few samples at most).
-        Some(k) => n + sse2::march(p, tri, ray, (k, range.1), acc),
-    })
 }
 
 /// [`super::march_packet`] where the AVX2 loop runs: `None` (having done nothing)

@@ -26,12 +26,11 @@ use std::arch::x86_64::{
     __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_ps, _mm256_and_si256,
     _mm256_andnot_si256, _mm256_blendv_ps, _mm256_castps_si256, _mm256_castsi256_ps, _mm256_cmp_ps,
     _mm256_cmpeq_epi32, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32, _mm256_div_ps,
-    _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_loadu_si256, _mm256_max_epi32,
-    _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps,
-    _mm256_mullo_epi32, _mm256_or_si256, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setzero_ps,
-    _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32, _mm256_storeu_ps,
-    _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LT_OQ,
-    _CMP_NEQ_UQ, _CMP_NGE_UQ,
+    _mm256_loadu_si256, _mm256_max_epi32, _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps,
+    _mm256_movemask_ps, _mm256_mul_ps, _mm256_mullo_epi32, _mm256_or_si256, _mm256_set1_epi32,
+    _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32,
+    _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ,
+    _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
 };
 
 use super::super::MarchParams;
@@ -53,13 +52,11 @@ pub(crate) struct Packet {
     pub(crate) acc: [[f32; 4]; LANES],
 }
 
-/// What the packet loop reads besides the volume: the occupancy's leap entries (padded
-/// by [`crate::render::occupancy::LEAP_PAD`] bytes, for the 32-bit gather), its cells per
-/// axis, and each bin's opacity apart from its colour.
+/// What the packet loop reads besides the volume and the classification: the occupancy's
+/// leap entries ([`crate::render::occupancy::Occupancy::leaps`]) and its cells per axis.
 pub(crate) struct PacketTables<'t> {
     pub(crate) leap: &'t [u8],
     pub(crate) cells: [i32; 3],
-    pub(crate) alpha: &'t [f32],
 }
 
 /// What a packet took: lane samples marched, and lane samples leapt over.
@@ -88,10 +85,14 @@ fn within(a: __m256i, x: __m256i, b: __m256i) -> __m256i {
 #[target_feature(enable = "avx2")]
 #[inline]
 fn hmin(v: __m256i) -> i32 {
-    let mut a = [0i32; LANES];
-    // SAFETY: `a` holds eight i32.
-    unsafe { _mm256_storeu_si256(a.as_mut_ptr().cast(), v) };
-    a.iter().copied().min().unwrap_or(i32::MAX)
+    use std::arch::x86_64::{
+        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm_cvtsi128_si32, _mm_min_epi32,
+        _mm_shuffle_epi32,
+    };
+    let m = _mm_min_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
+    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
+    _mm_cvtsi128_si32(m)
 }
 
 /// Marches `pk` front to back through the volume of `tri`, skipping the empty cells of
@@ -174,6 +175,11 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(_mm256_cvttps_epi32(c))
         })
     };
+    // The occupancy cells of the last sample looked up (none yet), their entries, and
+    // which of them are occupied, as bits.
+    let mut last_idx = _mm256_set1_epi32(-1);
+    let mut lv = [0i32; LANES];
+    let mut occ_bits = 0u32;
     loop {
         let kv = _mm256_set1_epi32(k);
         // Lanes whose ray claims sample k and has not terminated.
@@ -212,17 +218,26 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             ),
             cell[0],
         );
-        // SAFETY: every lane's cell is inside the grid (positions are clamped), and the
-        // table is padded for the 32-bit read at its last entry.
-        let leap = _mm256_and_si256(
-            unsafe { _mm256_i32gather_epi32::<1>(tab.leap.as_ptr().cast(), idx) },
-            _mm256_set1_epi32(0xFF),
-        );
-        let occupied = _mm256_cmpeq_epi32(
-            _mm256_and_si256(leap, _mm256_set1_epi32(i32::from(OCCUPIED))),
-            _mm256_set1_epi32(i32::from(OCCUPIED)),
-        );
-        if bits(_mm256_and_si256(occupied, live)) == 0 {
+        // The entries of the previous sample's cells serve while no lane changed cell
+        // (most samples, as a cell is several samples long).
+        if bits(_mm256_cmpeq_epi32(idx, last_idx)) != 0xFF {
+            last_idx = idx;
+            let mut ci = [0u32; LANES];
+            // SAFETY: `ci` holds eight u32.
+            unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
+            // Scalar loads: the lanes' entries are wanted as bits, and eight byte loads
+            // cost less than a gather.
+            occ_bits = 0;
+            for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
+                // SAFETY: every lane's cell is inside the grid (positions are clamped).
+                let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+                *l = i32::from(e);
+                occ_bits |= u32::from(e & OCCUPIED != 0) << j;
+            }
+        }
+        if occ_bits & live_bits == 0 {
+            // SAFETY: `lv` holds eight i32.
+            let leap = unsafe { _mm256_loadu_si256(lv.as_ptr().cast()) };
             // Every live lane is in an empty cell: the packet leaps.
             let kb = leap_end(
                 kv,
@@ -273,19 +288,15 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             bin_max,
         );
         let bin = _mm256_cvttps_epi32(x);
-        // SAFETY: bins are in [0, TF_BINS), and both tables hold TF_BINS entries.
-        let alpha = unsafe { _mm256_i32gather_ps::<4>(tab.alpha.as_ptr(), bin) };
+        // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
+        let [r, g, b, alpha] = unsafe { rgba8(rgba, bin) };
         st.samples += u64::from(live_bits.count_ones());
         let opaque = _mm256_and_ps(
             _mm256_castsi256_ps(live),
             _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),
         );
         if _mm256_movemask_ps(opaque) != 0 {
-            let b4 = _mm256_slli_epi32::<2>(bin);
-            // SAFETY: as for the opacity.
-            let mut s = [0, 1, 2].map(|c| unsafe {
-                _mm256_i32gather_ps::<4>(rgba, _mm256_add_epi32(b4, _mm256_set1_epi32(c)))
-            });
+            let mut s = [r, g, b];
             if SHADE {
                 // `Cell::gradient`, lane-wise.
                 let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
@@ -316,6 +327,39 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
         *px = [out[0][j], out[1][j], out[2][j], out[3][j]];
     }
     st
+}
+
+/// The table entries `rgba[bin]` of the eight lanes' bins, as red, green, blue and
+/// opacity vectors: eight loads of an entry and a transpose, cheaper than four gathers.
+///
+/// # Safety
+/// `rgba` holds an entry (four floats) for every lane's bin.
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn rgba8(rgba: *const f32, bin: __m256i) -> [__m256; 4] {
+    use std::arch::x86_64::{
+        _mm256_castpd_ps, _mm256_castps128_ps256, _mm256_castps_pd, _mm256_insertf128_ps,
+        _mm256_unpackhi_pd, _mm256_unpackhi_ps, _mm256_unpacklo_pd, _mm256_unpacklo_ps,
+        _mm_loadu_ps,
+    };
+    let mut b = [0u32; LANES];
+    // SAFETY: `b` holds eight u32; every entry is inside the table (caller).
+    unsafe {
+        _mm256_storeu_si256(b.as_mut_ptr().cast(), bin);
+        let q = |j: usize| _mm_loadu_ps(rgba.add(b[j] as usize * 4));
+        let pair = |j: usize| _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(q(j)), q(j + 4));
+        let (t0, t1, t2, t3) = (pair(0), pair(1), pair(2), pair(3));
+        // [r0 r1 g0 g1 | r4 r5 g4 g5], [b0 b1 a0 a1 | b4 b5 a4 a5], and lanes 2, 3, 6, 7.
+        let (u0, u1) = (_mm256_unpacklo_ps(t0, t1), _mm256_unpackhi_ps(t0, t1));
+        let (u2, u3) = (_mm256_unpacklo_ps(t2, t3), _mm256_unpackhi_ps(t2, t3));
+        let lo = |a: __m256, b: __m256| {
+            _mm256_castpd_ps(_mm256_unpacklo_pd(_mm256_castps_pd(a), _mm256_castps_pd(b)))
+        };
+        let hi = |a: __m256, b: __m256| {
+            _mm256_castpd_ps(_mm256_unpackhi_pd(_mm256_castps_pd(a), _mm256_castps_pd(b)))
+        };
+        [lo(u0, u2), hi(u0, u2), lo(u1, u3), hi(u1, u3)]
+    }
 }
 
 /// `m ? b : a`, lane-wise on integers.
@@ -409,6 +453,9 @@ fn leap_end(
     // Settled by one sample where a rounding put the estimate past a face.
     let kb1 = _mm256_sub_epi32(kb, one);
     let in1 = inside(kb1);
+    if bits(in1) == 0xFF {
+        return kb;
+    }
     let in2 = inside(_mm256_sub_epi32(kb1, one));
     let fallback = blend_i(_mm256_add_epi32(kv, one), kb1, in2);
     blend_i(fallback, kb, in1)
