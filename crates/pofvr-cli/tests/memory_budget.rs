@@ -1,5 +1,6 @@
-//! `--memory-budget SIZE` on `render`, `serve` and `experiment`: one parser and one message,
-//! the same images and figures as without a budget, and what each frame read.
+//! `--memory-budget SIZE` on `render`, `serve`, `experiment` and `pof build`: one parser and
+//! one message, the same images, figures and POF files as without a budget, and what each
+//! frame read.
 
 mod common;
 
@@ -148,8 +149,8 @@ fn every_command_reads_memory_budget_alike_and_refuses_bad_sizes_before_work() {
         ("M", "no number"),
     ] {
         let expected = format!("--memory-budget: bad size {size:?}: {why}");
-        for cmd in ["render", "serve", "experiment"] {
-            let mut args = vec![cmd];
+        for cmd in ["render", "serve", "experiment", "pof build"] {
+            let mut args: Vec<&str> = cmd.split(' ').collect();
             args.extend(VOL);
             args.extend(["--memory-budget", size, "--out", "out"]);
             if cmd == "serve" {
@@ -162,6 +163,117 @@ fn every_command_reads_memory_budget_alike_and_refuses_bad_sizes_before_work() {
             assert!(stderr(&o).contains(&expected), "{cmd}: {}", stderr(&o));
             assert!(!d.join("out").exists(), "{cmd} {size} left an output");
         }
+    }
+}
+
+#[test]
+fn pof_build_under_a_budget_streams_the_volume_and_writes_the_same_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_volume(d);
+    for method in ["bound", "sampled", "typical"] {
+        let build = |out: &str, extra: &[&str]| {
+            let mut args = vec!["pof", "build"];
+            args.extend(VOL);
+            args.extend(["--method", method, "--views", "4,6", "--sets", "-o", out]);
+            args.extend(extra);
+            let o = pofvr(&args, d);
+            assert!(o.status.success(), "{method} {extra:?}: {}", stderr(&o));
+            (std::fs::read(d.join(out)).unwrap(), stderr(&o))
+        };
+        let (whole, _) = build("whole.pof", &[]);
+        let (roomy, line) = build("roomy.pof", &["--memory-budget", ROOMY]);
+        // 16K: a row of bricks per slab.
+        let (tight, tline) = build("tight.pof", &["--memory-budget", TIGHT]);
+        assert!(roomy == whole, "{method}: the roomy budget's file differs");
+        assert!(tight == whole, "{method}: the tight budget's file differs");
+        assert!(
+            line.contains("slabs read") && line.contains("raw file"),
+            "{line}"
+        );
+        let slabs = |l: &str| -> u64 {
+            let at = l.find(" slabs read").expect("slab count");
+            l[..at].rsplit(' ').next().unwrap().parse().unwrap()
+        };
+        // The roomy budget reads a layer of bricks per slab, the tight one a row.
+        assert!(slabs(&tline) > slabs(&line), "{line}\n{tline}");
+        assert!(!d.join("tight.pof.partial").exists());
+    }
+    // Every temp file was renamed into place.
+    let left: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+#[test]
+fn pof_build_under_a_budget_reads_a_zarr_level_by_its_chunks_and_writes_the_same_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_volume(d);
+    let mut args = vec!["convert"];
+    args.extend(&VOL[..5]);
+    args.push("v.zarr");
+    let o = pofvr(&args, d);
+    assert!(o.status.success(), "convert: {}", stderr(&o));
+    let build = |out: &str, extra: &[&str]| {
+        let mut args = vec!["pof", "build", "v.zarr", "--level", "0", "--tf", "tf.json"];
+        args.extend(["--method", "typical", "--views", "4,6", "-o", out]);
+        args.extend(extra);
+        let o = pofvr(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        (std::fs::read(d.join(out)).unwrap(), stderr(&o))
+    };
+    let (whole, _) = build("whole.pof", &[]);
+    let (held, line) = build("held.pof", &["--memory-budget", ROOMY]);
+    assert!(held == whole, "the budgeted build's file differs");
+    assert!(
+        line.contains("zarr chunks") && line.contains("slabs read"),
+        "{line}"
+    );
+    // The budgeted table is the raw file's too: the same voxels.
+    let mut args = vec!["pof", "build"];
+    args.extend(VOL);
+    args.extend(["--method", "typical", "--views", "4,6", "-o", "raw.pof"]);
+    assert!(pofvr(&args, d).status.success());
+    assert!(std::fs::read(d.join("raw.pof")).unwrap() == held);
+}
+
+#[test]
+fn what_samples_the_whole_volume_is_refused_under_a_budget_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_volume(d);
+    for extra in [&["--whole"][..], &["--cull", "exact"][..]] {
+        let mut args = vec!["render"];
+        args.extend(VOL);
+        args.extend([
+            "--size",
+            "32x32",
+            "--out",
+            "o.png",
+            "--memory-budget",
+            ROOMY,
+        ]);
+        args.extend(extra);
+        let o = pofvr(&args, d);
+        assert!(!o.status.success(), "{extra:?} succeeded");
+        let e = stderr(&o);
+        assert!(
+            e.contains("v.raw") && e.contains("does not fit the memory budget"),
+            "{extra:?}: {e}"
+        );
+        assert!(!d.join("o.png").exists(), "{extra:?} left an image");
+        // Without the budget the same frame renders.
+        let mut args = vec!["render"];
+        args.extend(VOL);
+        args.extend(["--size", "32x32", "--out", "o.png"]);
+        args.extend(extra);
+        let o = pofvr(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        std::fs::remove_file(d.join("o.png")).unwrap();
     }
 }
 

@@ -319,7 +319,18 @@ impl RenderJob {
                 .read_box(&self.volume, [0, 0, z0], [d[0], d[1], n])
         };
         let p = Proxy::from_slabs(d, &self.sampled, planes, &read)?;
-        Ok(self.proxy.get_or_init(|| p))
+        let mut first = false;
+        let p = self.proxy.get_or_init(|| {
+            first = true;
+            p
+        });
+        if first {
+            // The proxy and the extinction it caches (a float per cell) come out of the
+            // budget: the cache keeps the rest.
+            let cells: usize = p.cells().iter().product();
+            store.reserve(p.heap_bytes() + 4 * cells as u64);
+        }
+        Ok(p)
     }
 
     /// Forgets the bricks the last verified frame needed, so that the next

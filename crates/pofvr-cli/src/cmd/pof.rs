@@ -1,14 +1,15 @@
 //! `pofvr pof build|info|check` and `pofvr bench pof`.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Subcommand};
 use pofvr::brick::BrickGrid;
 use pofvr::check::{audit_table, AuditSummary};
-use pofvr::pof::{Encoding, PofMethod, PofSettings, PofTable};
-use pofvr::pof_measure::{build_timed, cell_opacities, TimedBuild};
-use pofvr::render::{families, TransferFunction};
+use pofvr::pof::{build_streamed, Encoding, PofMethod, PofSettings, PofTable};
+use pofvr::pof_measure::{build_timed, cell_opacities, process_cpu_seconds, TimedBuild};
+use pofvr::render::{families, SampledTf, TransferFunction};
 use pofvr::volume::{DataType, RawSpec, Volume};
 use serde::Serialize;
 
@@ -134,6 +135,15 @@ pub(crate) struct PofBuildArgs {
     /// Start afresh instead of resuming from FILE.pof.partial.
     #[arg(long)]
     pub(crate) no_resume: bool,
+    /// At most this much memory for the volume's voxels and the table (e.g. 256M, 4G): the
+    /// volume is read once, one slab of bricks at a time (raw, NRRD and MetaImage raw data
+    /// by positioned reads, Zarr by its chunks, half the budget for decoded chunks), and
+    /// the records are written to the file as each slab finishes instead of held. The file
+    /// is the same byte for byte. A budgeted build keeps no FILE.pof.partial: interrupted,
+    /// it starts afresh.
+    /// > default: none (the whole volume is mapped and the table built in memory)
+    #[arg(long, value_name = "SIZE")]
+    pub(crate) memory_budget: Option<String>,
 }
 
 #[derive(Args, Debug)]
@@ -239,16 +249,21 @@ fn check_table(
 }
 
 fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
-    let sp = ui.spinner("opening and bricking the volume");
-    let vol = resolve::volume(&a.volume)?;
-    let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
-    let grid = BrickGrid::from_volume(&vol, a.volume.brick)?;
-    sp.finish_and_clear();
+    let budget = super::render::memory_budget(a.memory_budget.as_deref())?;
     let encoding: Encoding = a
         .encoding
         .parse()
         .map_err(|e: String| anyhow!("--encoding: {e}"))?;
     let settings = a.knobs.settings(encoding, a.sets)?;
+    let sp = ui.spinner("opening and bricking the volume");
+    // Under a budget a Zarr level is not decoded, and the ranges are streamed from the file.
+    let vol = resolve::volume_deferring(&a.volume, None, budget)?;
+    let tf = resolve::required_tf(&a.tf, &a.volume.volume)?;
+    let grid = pofvr::store::grid_for(&vol, a.volume.brick, budget)?;
+    sp.finish_and_clear();
+    if let Some(b) = budget {
+        return build_within(a, ui, &vol, &grid, &tf, &settings, b);
+    }
     let partial = PathBuf::from(format!("{}.partial", a.out.display()));
     if a.no_resume {
         let _ = std::fs::remove_file(&partial);
@@ -271,22 +286,103 @@ fn build(a: &PofBuildArgs, ui: &Ui) -> Result<()> {
         built.seconds,
         built.brick_views_per_core_second()
     );
-    if settings.method == PofMethod::Sampled {
+    method_note(settings.method, &a.out);
+    Ok(())
+}
+
+/// `pof build --memory-budget`: the volume streamed slab by slab, the table streamed out.
+fn build_within(
+    a: &PofBuildArgs,
+    ui: &Ui,
+    vol: &Volume,
+    grid: &BrickGrid,
+    tf: &TransferFunction,
+    settings: &PofSettings,
+    budget: u64,
+) -> Result<()> {
+    let source = pofvr::store::BrickSource::of(vol)?;
+    // A Zarr level's decoded chunks take half the budget, the slabs and records the rest.
+    let slabs = match source.zarr() {
+        Some(z) => {
+            z.set_chunk_budget(budget / 2);
+            budget - budget / 2
+        }
+        None => budget,
+    };
+    let sampled = SampledTf::new(tf, grid.value_range());
+    let bar = ui.bar(0, "POFs (streamed)");
+    let t0 = Instant::now();
+    let cpu0 = process_cpu_seconds();
+    let r = build_streamed(
+        vol,
+        &source,
+        grid,
+        tf,
+        &sampled,
+        settings,
+        slabs,
+        &a.out,
+        &|done, n| {
+            bar.set_length(n);
+            bar.set_position(done);
+        },
+    )?;
+    bar.finish_and_clear();
+    let seconds = t0.elapsed().as_secs_f64();
+    let cpu = process_cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
+    let views = settings.views[0] * settings.views[1];
+    let core_seconds = cpu
+        .filter(|c| *c > 0.0)
+        .unwrap_or(seconds * rayon::current_num_threads() as f64);
+    eprintln!(
+        "{}: {} method, {} of {} bricks stored ({} non-empty computed), {} views, {} encoding, {:.0} bytes per brick per basis, {} bytes; {:.2} s ({:.1} s CPU), {:.0} brick-views/s per core",
+        a.out.display(),
+        settings.method,
+        r.stored_bricks,
+        grid.len(),
+        r.computed_bricks,
+        views,
+        settings.encoding,
+        settings
+            .encoding
+            .function_bytes(settings.views.map(|v| v as u32)),
+        r.file_bytes,
+        seconds,
+        cpu.unwrap_or(f64::NAN),
+        r.computed_bricks as f64 * views as f64 / core_seconds.max(1e-9),
+    );
+    eprintln!(
+        "memory budget {:.1} MB ({}): {} slabs read, {:.1} MB read ({:.0} % of the volume's {:.1} MB), largest slab with its records {:.1} MB, peak RSS {:.1} MB",
+        budget as f64 / 1e6,
+        source.kind(),
+        r.slabs_read,
+        r.bytes_read as f64 / 1e6,
+        100.0 * r.bytes_read as f64 / pofvr::store::volume_bytes(vol).max(1) as f64,
+        pofvr::store::volume_bytes(vol) as f64 / 1e6,
+        r.slab_peak_bytes as f64 / 1e6,
+        pofvr::store::peak_rss_bytes() as f64 / 1e6,
+    );
+    method_note(settings.method, &a.out);
+    Ok(())
+}
+
+/// What to do with a table that measures rather than bounds.
+fn method_note(method: PofMethod, out: &Path) {
+    if method == PofMethod::Sampled {
         eprintln!(
             "note: the sampled method measures rather than bounds; before culling with {}, \
              run `pofvr pof check` on this volume (it exits non-zero if a lookup exceeds \
              the brute-force minimum)",
-            a.out.display()
+            out.display()
         );
     }
-    if settings.method == PofMethod::Typical {
+    if method == PofMethod::Typical {
         eprintln!(
             "note: typical POFs predict rather than bound; cull with them as \
              `--cull verified --predictor pof --pof {}` (or `--cull pof --verify`)",
-            a.out.display()
+            out.display()
         );
     }
-    Ok(())
 }
 
 #[derive(Serialize)]

@@ -330,13 +330,14 @@ pub(crate) fn budget_line(store: &pofvr::store::BrickCache, per_frame: &[u64]) -
         .collect();
     let c = store.summary();
     format!(
-        "memory budget {} MB: bricks read on demand from the {}, MB read per frame [{}], {} bricks read, {} cache hits, cache peak {:.1} MB, peak RSS {:.1} MB",
+        "memory budget {} MB: bricks read on demand from the {}, MB read per frame [{}], {} bricks read, {} cache hits, cache peak {:.1} MB (proxy charged {:.1} MB), peak RSS {:.1} MB",
         c.budget_bytes / 1_000_000,
         store.source().kind(),
         per.join(", "),
         c.bricks_read,
         c.cache_hits,
         c.cache_peak_bytes as f64 / 1e6,
+        c.reserved_bytes as f64 / 1e6,
         pofvr::store::peak_rss_bytes() as f64 / 1e6
     )
 }

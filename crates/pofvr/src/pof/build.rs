@@ -32,12 +32,12 @@ use rayon::prelude::*;
 
 use super::file::{self, Bytes};
 use super::sampled::{SampledBrick, TauRows};
+use super::stream_build::BrickVoxels;
 use super::{encoding, PofError, PofMeta, PofMethod, PofSettings, PofTable, ALPHA_MAX};
 use crate::brick::{BrickGrid, BrickId};
 use crate::render::transfer_function::TF_BINS;
 use crate::render::{SampledTf, TransferFunction};
-use crate::volume::{Volume, Voxel};
-use crate::with_voxels;
+use crate::volume::Volume;
 
 /// Range-minimum over the bins of one basis (sparse table).
 struct BinMin {
@@ -73,6 +73,8 @@ impl BinMin {
 /// What the whole build shares.
 pub(super) struct Ctx<'a> {
     pub(super) volume: &'a Volume,
+    /// Where bricks' voxels are read: the volume itself, or the slab a streamed build holds.
+    pub(super) voxels: &'a dyn BrickVoxels,
     pub(super) grid: &'a BrickGrid,
     sampled: &'a SampledTf,
     bins: Vec<BinMin>,
@@ -153,17 +155,27 @@ pub(super) struct Hooks<'a> {
     pub(super) cancel: Option<&'a AtomicBool>,
 }
 
-pub(super) fn build(
+/// What a build computes before its first brick: the shared context, the file's meta and
+/// the bricks to compute (those whose value range touches a non-zero bin), in id order.
+pub(super) struct Plan<'a> {
+    pub(super) ctx: Ctx<'a>,
+    pub(super) meta: PofMeta,
+    pub(super) todo: Vec<BrickId>,
+    pub(super) record_len: usize,
+}
+
+/// Plans a build of `grid`'s bricks whose voxels are read from `voxels` (`volume` itself,
+/// or a streamed build's slabs of it) and runs it with `run` (the plan borrows the joint
+/// POF's family table, which lives here).
+pub(super) fn with_plan<R>(
     volume: &Volume,
+    voxels: &dyn BrickVoxels,
     grid: &BrickGrid,
     tf: &TransferFunction,
     sampled: &SampledTf,
     settings: &PofSettings,
-    partial: Option<&Path>,
-    hooks: Hooks<'_>,
-) -> Result<PofTable, PofError> {
-    let progress = hooks.progress;
-    let cancelled = || hooks.cancel.is_some_and(|c| c.load(Ordering::Relaxed));
+    run: impl FnOnce(Plan<'_>) -> Result<R, PofError>,
+) -> Result<R, PofError> {
     validate(settings)?;
     let p = sampled.basis_count();
     if tf.bases.len() != p {
@@ -186,6 +198,7 @@ pub(super) fn build(
     let joint_sampled = anchor.as_ref().map(|a| sampled.joint(a));
     let mut ctx = Ctx {
         volume,
+        voxels,
         grid,
         sampled,
         bins: (0..p).map(|i| BinMin::new(sampled.tau_table(i))).collect(),
@@ -248,6 +261,38 @@ pub(super) fn build(
 
     // Bricks whose value range touches a non-zero bin of some basis.
     let todo: Vec<BrickId> = grid.ids().filter(|id| !ctx.brick_empty(*id)).collect();
+    run(Plan {
+        ctx,
+        meta,
+        todo,
+        record_len,
+    })
+}
+
+pub(super) fn build(
+    volume: &Volume,
+    grid: &BrickGrid,
+    tf: &TransferFunction,
+    sampled: &SampledTf,
+    settings: &PofSettings,
+    partial: Option<&Path>,
+    hooks: Hooks<'_>,
+) -> Result<PofTable, PofError> {
+    with_plan(volume, volume, grid, tf, sampled, settings, |plan| {
+        run(plan, partial, &hooks)
+    })
+}
+
+fn run(plan: Plan<'_>, partial: Option<&Path>, hooks: &Hooks<'_>) -> Result<PofTable, PofError> {
+    let Plan {
+        ctx,
+        meta,
+        todo,
+        record_len,
+    } = plan;
+    let progress = hooks.progress;
+    let cancelled = || hooks.cancel.is_some_and(|c| c.load(Ordering::Relaxed));
+    let grid = ctx.grid;
     let total = todo.len() as u64;
     let mut done: HashMap<u32, Option<Vec<u8>>> = HashMap::new();
     let mut part = match partial {
@@ -442,30 +487,28 @@ impl<'a> Ctx<'a> {
         if n.contains(&0) {
             return None;
         }
-        let dims = self.volume.dims();
         let p = self.p;
         let mut base = vec![0f32; n[0] * n[1] * n[2] * p];
-        with_voxels!(self.volume.data(), v => {
-            let at = |x: usize, y: usize, z: usize| v[x + dims[0] * (y + dims[1] * z)].to_f32();
-            for z in 0..n[2] {
-                for y in 0..n[1] {
-                    for x in 0..n[0] {
-                        let (gx, gy, gz) = (lo[0] + x, lo[1] + y, lo[2] + z);
-                        let (mut mn, mut mx) = (f32::INFINITY, f32::NEG_INFINITY);
-                        for c in 0..8 {
-                            let s = at(gx + (c & 1), gy + ((c >> 1) & 1), gz + ((c >> 2) & 1));
-                            mn = mn.min(s);
-                            mx = mx.max(s);
-                        }
-                        let (b0, b1) = self.bin_range(mn, mx);
-                        let cell = (x + n[0] * (y + n[1] * z)) * p;
-                        for i in 0..p {
-                            base[cell + i] = self.bins[i].min(b0, b1);
-                        }
+        // The brick's voxels and its far ghost layer, (n + 1)³.
+        let vox = self.voxels.box_f32(lo, hi);
+        let at = |x: usize, y: usize, z: usize| vox[x + (n[0] + 1) * (y + (n[1] + 1) * z)];
+        for z in 0..n[2] {
+            for y in 0..n[1] {
+                for x in 0..n[0] {
+                    let (mut mn, mut mx) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for c in 0..8 {
+                        let s = at(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1));
+                        mn = mn.min(s);
+                        mx = mx.max(s);
+                    }
+                    let (b0, b1) = self.bin_range(mn, mx);
+                    let cell = (x + n[0] * (y + n[1] * z)) * p;
+                    for i in 0..p {
+                        base[cell + i] = self.bins[i].min(b0, b1);
                     }
                 }
             }
-        });
+        }
         if base.iter().all(|t| *t == 0.0) {
             return None;
         }
@@ -473,7 +516,7 @@ impl<'a> Ctx<'a> {
     }
 
     /// The encoded record of a brick, or `None` when its POF is 0 for every basis.
-    fn brick_record(&self, id: BrickId) -> Option<Vec<u8>> {
+    pub(super) fn brick_record(&self, id: BrickId) -> Option<Vec<u8>> {
         let zero = |t: &Vec<f32>| t.iter().all(|a| *a <= 0.0);
         let (own, joint) = match (self.method, &self.tau) {
             (PofMethod::Typical, Some(tau)) => {
@@ -515,6 +558,7 @@ impl<'a> Ctx<'a> {
     fn sibling(&self, sampled: &'a SampledTf, step: f32) -> Ctx<'a> {
         Ctx {
             volume: self.volume,
+            voxels: self.voxels,
             grid: self.grid,
             sampled,
             bins: (0..sampled.basis_count())

@@ -24,6 +24,10 @@ pub enum PofError {
     /// The file could not be written.
     #[error(transparent)]
     Write(#[from] crate::io::WriteError),
+    /// The volume's voxels could not be read (a build that reads them from the file,
+    /// [`crate::pof::build_streamed`]).
+    #[error(transparent)]
+    Volume(#[from] crate::volume::VolumeError),
     /// Not a POF file, or a structurally invalid one.
     #[error("{file}: not a valid POF file: {why}")]
     Format {

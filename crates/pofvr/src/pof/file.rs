@@ -77,10 +77,29 @@ fn dtype_from(c: u8) -> Option<DataType> {
 
 /// Assembles a complete file image from the meta, the slot index and the records.
 pub(crate) fn assemble(meta: &PofMeta, index: &[u32], data: &[u8], record_len: usize) -> Vec<u8> {
+    let mut out = head(meta, index, data.len(), crc32fast::hash(data), record_len);
+    out.extend_from_slice(data);
+    out
+}
+
+/// Where the records start in a file of `bricks` bricks.
+pub(crate) fn data_offset(bricks: usize) -> usize {
+    (HEADER_LEN + bricks * 4).next_multiple_of(8)
+}
+
+/// The file's bytes before its records (header, index, padding) for records of `data_len`
+/// bytes with CRC32 `data_crc`: what a build that streams its records out writes last.
+pub(crate) fn head(
+    meta: &PofMeta,
+    index: &[u32],
+    data_len: usize,
+    data_crc: u32,
+    record_len: usize,
+) -> Vec<u8> {
     let index_len = index.len() * 4;
     let index_offset = HEADER_LEN;
-    let data_offset = (index_offset + index_len).next_multiple_of(8);
-    let mut out = Vec::with_capacity(data_offset + data.len());
+    let data_offset = data_offset(index.len());
+    let mut out = Vec::with_capacity(data_offset);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&VERSION.to_le_bytes());
     out.extend_from_slice(&(HEADER_LEN as u32).to_le_bytes());
@@ -110,12 +129,12 @@ pub(crate) fn assemble(meta: &PofMeta, index: &[u32], data: &[u8], record_len: u
         out.extend_from_slice(&f.to_le_bytes());
     }
     out.extend_from_slice(&meta.subdiv.to_le_bytes());
-    for v in [index_offset, index_len, data_offset, data.len(), record_len] {
+    for v in [index_offset, index_len, data_offset, data_len, record_len] {
         out.extend_from_slice(&(v as u64).to_le_bytes());
     }
     let index_bytes: Vec<u8> = index.iter().flat_map(|s| s.to_le_bytes()).collect();
     out.extend_from_slice(&crc32fast::hash(&index_bytes).to_le_bytes());
-    out.extend_from_slice(&crc32fast::hash(data).to_le_bytes());
+    out.extend_from_slice(&data_crc.to_le_bytes());
     out.extend_from_slice(&meta.phases.to_le_bytes());
     debug_assert_eq!(out.len(), 156);
     let anchor = meta.joint.as_deref().unwrap_or(&[]);
@@ -130,7 +149,6 @@ pub(crate) fn assemble(meta: &PofMeta, index: &[u32], data: &[u8], record_len: u
     out.extend_from_slice(&hcrc.to_le_bytes());
     out.extend_from_slice(&index_bytes);
     out.resize(data_offset, 0);
-    out.extend_from_slice(data);
     out
 }
 

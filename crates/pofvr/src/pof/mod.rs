@@ -33,7 +33,8 @@
 //! ## Files
 //!
 //! - `settings`: the knobs of the precompute ([`PofSettings`], [`PofMethod`]).
-//! - `build`, `sampled`: the two builders; `reference`: the brute-force twin.
+//! - `build`, `sampled`: the two builders; `reference`: the brute-force twin;
+//!   `stream_build`: a build within a memory budget, slab by slab, written as it goes.
 //! - `table`: the table of records ([`PofTable`]); `meta`: what it was built for
 //!   ([`PofMeta`]); `error`: [`PofError`]; `file`, `encoding`, `cubic`: how it is stored.
 //! - `lookup`: run-time opacity along a direction or over a cone ([`PofMode`], Eq. 3);
@@ -52,6 +53,7 @@ mod prefetch;
 pub mod reference;
 mod sampled;
 mod settings;
+mod stream_build;
 mod table;
 #[cfg(test)]
 mod test;
@@ -66,5 +68,6 @@ pub use settings::{
     PofMethod, PofSettings, JOINT_MAX_BASES, SAMPLED_MARGIN, SAMPLED_PHASES, SAMPLED_PITCH,
     TYPICAL_PITCH, TYPICAL_QUANTILE,
 };
+pub use stream_build::{build_streamed, build_streamed_in_memory, StreamedBuild};
 pub use table::PofTable;
 pub use view_grid::{angles, direction};

@@ -26,8 +26,6 @@ use crate::brick::BrickId;
 use crate::render::sampler::TrilinearSampler;
 use crate::render::transfer_function::TF_BINS;
 use crate::render::SampledTf;
-use crate::volume::Voxel;
-use crate::with_voxels;
 
 /// Per-basis extinction per step, `lanes` floats per bin (bases padded with zeros): the
 /// hot loop adds a whole bin's row at once.
@@ -165,16 +163,7 @@ impl SampledBrick {
         if n.contains(&0) {
             return None;
         }
-        let dims = ctx.volume.dims();
-        let mut vox = Vec::with_capacity((n[0] + 1) * (n[1] + 1) * (n[2] + 1));
-        with_voxels!(ctx.volume.data(), v => {
-            for z in lo[2]..=hi[2] {
-                for y in lo[1]..=hi[1] {
-                    let at = lo[0] + dims[0] * (y + dims[1] * z);
-                    vox.extend(v[at..=at + n[0]].iter().map(|x| x.to_f32()));
-                }
-            }
-        });
+        let vox = ctx.voxels.box_f32(lo, hi);
         Some(SampledBrick {
             n,
             vox,

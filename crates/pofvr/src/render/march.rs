@@ -12,11 +12,15 @@
 //! only once the last sample of the leap is found, by the sampler's own cell, inside the
 //! cube: then every sample between is inside too, and classifies to zero opacity, which
 //! composites to nothing. Everything else goes, in order and with the same accumulator,
-//! through the same sample loops ([`super::arch::march`], AVX2 or SSE2, scalar on request),
-//! so the image equals the reference bit for bit. Marching a sample of zero opacity changes
+//! through the same float operations as the reference, so the image equals it bit for bit.
+//!
+//! Where the CPU has AVX2, the frame goes in packets of eight rays (4 × 2 pixels), one
+//! ray per lane, through `arch/x86_64/packet.rs`: composited lane-wise, and leaping for
+//! the packet as a whole by the rule above evaluated lane-wise. Elsewhere (SSE2, or the
+//! scalar loop on request) each ray walks alone: marching a sample of zero opacity changes
 //! nothing either, so the walk marches through occupied cells, and the empty cells next to
-//! them, in chunks of samples without looking at each cell: the estimates cost a cell
-//! lookup and a few float operations per leap, and the exact test two sample cells.
+//! them, in chunks of samples through the sample loops ([`super::arch::march`]) without
+//! looking at each cell.
 
 use rayon::prelude::*;
 
@@ -83,6 +87,9 @@ impl RayCaster<'_> {
         );
         let stats = with_voxels!(self.volume().data(), v => {
             let tri = TrilinearSampler::new(v, self.volume().dims());
+            if let Some(st) = self.render_packets(&tri, &rays, occ, w, image.pixels_mut()) {
+                st
+            } else {
             image
                 .pixels_mut()
                 .par_chunks_mut(w * TILE_ROWS)
@@ -112,13 +119,108 @@ impl RayCaster<'_> {
                     a += b;
                     a
                 })
+            }
         });
         (image, stats)
     }
 
-    /// Walks samples `k0..k1` of `ray` through the cells of `skip` into `acc`. Where the
-    /// AVX2 loop runs, it tests the occupancy itself, eight samples at a time, and leaps
-    /// from within ([`super::arch::march_skip`]). Elsewhere the walk goes from sample to
+    /// The frame in packets of eight rays, 4 × 2 pixels each, through the AVX2 packet loop
+    /// ([`arch::march_packet`]), in parallel over bands of rows: `None`, having done
+    /// nothing, where that loop does not run.
+    #[cfg(target_arch = "x86_64")]
+    fn render_packets<T: Gather>(
+        &self,
+        tri: &TrilinearSampler<'_, T>,
+        rays: &FrameRays,
+        occ: &Occupancy,
+        w: usize,
+        pixels: &mut [[f32; 4]],
+    ) -> Option<MarchStats> {
+        use arch::x86_64::packet::{Packet, PacketTables, LANES};
+        const PW: usize = 4;
+        const PH: usize = LANES / PW;
+        let p = self.params();
+        if !arch::packets(&p, tri) {
+            return None;
+        }
+        let step = self.settings().step;
+        let vbox = self.volume_box();
+        let tab = PacketTables {
+            leap: occ.leaps(),
+            cells: occ.dims().map(|n| n as i32),
+        };
+        let none = IndexRay {
+            o: [0.0; 3],
+            d: [0.0; 3],
+            dir: [0.0; 3],
+        };
+        pixels
+            .par_chunks_mut(w * TILE_ROWS)
+            .enumerate()
+            .map(|(band, rows)| {
+                let mut st = MarchStats::default();
+                let h = rows.len() / w;
+                let mut pk = Packet {
+                    rays: [none; LANES],
+                    k0: [0; LANES],
+                    k1: [0; LANES],
+                    acc: [[0.0; 4]; LANES],
+                };
+                for x0 in (0..w).step_by(PW) {
+                    for r0 in (0..h).step_by(PH) {
+                        for j in 0..LANES {
+                            let (x, r) = (x0 + j % PW, r0 + j / PW);
+                            pk.k0[j] = 0;
+                            pk.k1[j] = 0;
+                            if x >= w || r >= h {
+                                continue;
+                            }
+                            let ray = rays.ray(x as u32, (band * TILE_ROWS + r) as u32);
+                            if let Some(span) = ray.span(&vbox) {
+                                st.rays.rays += 1;
+                                (pk.k0[j], pk.k1[j]) = sample_range(span, step);
+                                pk.rays[j] = ray;
+                                pk.acc[j] = rows[r * w + x];
+                            }
+                        }
+                        let ps = arch::march_packet(&p, tri, &tab, &mut pk)?;
+                        st.rays.samples += ps.samples;
+                        st.skipped_samples += ps.skipped;
+                        for j in 0..LANES {
+                            let (x, r) = (x0 + j % PW, r0 + j / PW);
+                            if pk.k0[j] < pk.k1[j] {
+                                rows[r * w + x] = pk.acc[j];
+                            }
+                        }
+                    }
+                }
+                Some(st)
+            })
+            .reduce(
+                || Some(MarchStats::default()),
+                |a, b| {
+                    let mut a = a?;
+                    a += b?;
+                    Some(a)
+                },
+            )
+    }
+
+    /// [`Self::render_packets`] where there is no packet loop.
+    #[cfg(not(target_arch = "x86_64"))]
+    fn render_packets<T: Gather>(
+        &self,
+        _: &TrilinearSampler<'_, T>,
+        _: &FrameRays,
+        _: &Occupancy,
+        _: usize,
+        _: &mut [[f32; 4]],
+    ) -> Option<MarchStats> {
+        None
+    }
+
+    /// Walks samples `k0..k1` of `ray` through the cells of `skip` into `acc`, where the
+    /// packet loop does not run (SSE2 or the scalar loop): the walk goes from sample to
     /// sample: at sample `k`, its cell (the sampler's own) and that cell's
     /// [`Occupancy::leaps`] give a cube of empty cells around it, and
     /// [`Skip::leap_end`] the first sample past it; everything else is marched, in order,
@@ -133,10 +235,6 @@ impl RayCaster<'_> {
         st: &mut MarchStats,
     ) {
         let ert = self.settings().ert;
-        if let Some(n) = arch::march_skip(&self.params(), tri, ray, (k0, k1), acc, skip) {
-            st.rays.samples += n;
-            return;
-        }
         let march = |from: i32, to: i32, acc: &mut [f32; 4], st: &mut MarchStats| {
             st.rays.samples += self.march(tri, ray, (from, to), acc);
             acc[3] >= ert

@@ -224,7 +224,7 @@ impl Occupancy {
             .collect();
         let cells = ranges.cells;
         let to_occupied = chessboard(&cell, true, cells, EMPTY_CAP);
-        let leap = cell
+        let leap: Vec<u8> = cell
             .par_iter()
             .zip(&to_occupied)
             .map(|(&occ, &e)| if occ { OCCUPIED } else { e })

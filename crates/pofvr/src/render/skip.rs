@@ -1,8 +1,7 @@
 //! Exact leaps over empty space for one ray: which occupancy cell the sampler puts a
 //! lattice sample in, and how far past a cube of empty cells the ray may jump without
-//! dropping a sample of nonzero opacity. The march engine's walk ([`super::march`]) and the
-//! AVX2 sample loop that tests occupancy itself (`arch/x86_64/avx2.rs`) share it, so both
-//! leap by the same rule.
+//! dropping a sample of nonzero opacity. The march engine's walk ([`super::march`]) leaps by
+//! it, and the AVX2 packet loop (`arch/x86_64/packet.rs`) by the same rule, lane-wise.
 //!
 //! A sample's position along each axis, `o + (k·step)·d` in f32, is monotone in the lattice
 //! index `k` (every float operation in it is monotone), and so is its trilinear cell (the

@@ -239,7 +239,8 @@ impl Scene {
 
     /// As [`Scene::build_pofs`], saving finished bricks to `partial` and resuming from it
     /// ([`PofTable::build_resumable`]), and calling `progress(done, total)` as bricks
-    /// complete.
+    /// complete. A scene that reads its volume through a brick store builds from the
+    /// store's slabs and keeps no partial file.
     ///
     /// # Errors
     /// As [`Scene::build_pofs`], plus I/O errors on `partial`.
@@ -249,12 +250,48 @@ impl Scene {
         partial: Option<&Path>,
         progress: &(dyn Fn(u64, u64) + Sync),
     ) -> Result<PofTable> {
+        if let Some(t) = self.build_pofs_streamed(build, progress, None)? {
+            return Ok(t);
+        }
         self.whole_lattice("a POF build")?;
         let settings = build.settings(self.step(), self.early_termination());
         let j = &self.job;
         Ok(PofTable::build_resumable(
             &j.volume, &j.grid, &j.tf, &j.sampled, &settings, partial, progress,
         )?)
+    }
+
+    /// A scene whose volume is read through its brick store (a file or Zarr level larger
+    /// than the memory budget) builds its POFs from the store, slab by slab, instead of
+    /// sampling the volume's mapping ([`crate::pof::build_streamed_in_memory`]); `None` for
+    /// any other scene. Such a build keeps no partial file.
+    fn build_pofs_streamed(
+        &self,
+        build: &PofBuild,
+        progress: &(dyn Fn(u64, u64) + Sync),
+        cancel: Option<&AtomicBool>,
+    ) -> Result<Option<PofTable>> {
+        let Some(store) = self.job.store.as_ref().filter(|s| s.source().is_file()) else {
+            return Ok(None);
+        };
+        let settings = build.settings(self.step(), self.early_termination());
+        let j = &self.job;
+        let chunks = store
+            .source()
+            .zarr()
+            .map_or(0, crate::store::ZarrSource::chunk_budget);
+        let (table, _) = crate::pof::build_streamed_in_memory(
+            &j.volume,
+            store.source(),
+            &j.grid,
+            &j.tf,
+            &j.sampled,
+            &settings,
+            store.budget().saturating_sub(chunks).max(1),
+            progress,
+            cancel,
+        )?;
+        Ok(Some(table))
     }
 
     /// As [`Scene::build_pofs`], calling `progress(done, total)` as bricks complete and
@@ -269,6 +306,9 @@ impl Scene {
         progress: &(dyn Fn(u64, u64) + Sync),
         cancel: &AtomicBool,
     ) -> Result<PofTable> {
+        if let Some(t) = self.build_pofs_streamed(build, progress, Some(cancel))? {
+            return Ok(t);
+        }
         self.whole_lattice("a POF build")?;
         let settings = build.settings(self.step(), self.early_termination());
         let j = &self.job;
@@ -426,8 +466,25 @@ impl Scene {
 
     /// An error when `what` would sample the whole lattice of a volume whose voxels are
     /// not resident (a Zarr level larger than the memory budget, decoded chunk by chunk
-    /// for the bricks rendered): silent zeros would be a wrong image.
+    /// for the bricks rendered): silent zeros would be a wrong image. Also when they are a
+    /// file larger than the memory budget: sampling its mapping would bring every page it
+    /// touches into memory (the whole file, for the exact cull and the whole-volume pass),
+    /// past the budget the caller asked for.
     fn whole_lattice(&self, what: &str) -> Result<()> {
+        if let Some(store) = &self.job.store {
+            if let crate::store::BrickSource::File { path, .. } = store.source() {
+                return Err(Error::Engine {
+                    engine: "reference",
+                    why: format!(
+                        "{what} samples the whole volume, and {} ({:.1} MB of voxels in {}) does not fit the memory budget of {:.1} MB: it would map the whole file, where the brick engine reads only the bricks it renders. Render with --cull none or verified, or raise or leave out --memory-budget",
+                        self.job.volume.source(),
+                        crate::store::volume_bytes(&self.job.volume) as f64 / 1e6,
+                        path.display(),
+                        store.budget() as f64 / 1e6,
+                    ),
+                });
+            }
+        }
         if self.job.volume.is_resident() {
             return Ok(());
         }

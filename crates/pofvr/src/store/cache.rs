@@ -121,6 +121,8 @@ impl Lru {
 pub struct BrickCache {
     source: BrickSource,
     budget: u64,
+    /// Bytes of the budget held outside the cache ([`BrickCache::reserve`]).
+    reserved: AtomicU64,
     lru: Mutex<Lru>,
     totals: ReadCounts,
 }
@@ -139,6 +141,9 @@ pub struct CacheSummary {
     /// Bricks read but not cached, because the cache was full of the reading frame's own
     /// bricks (see the [module](self)).
     pub not_cached: u64,
+    /// Bytes of the budget held outside the cache (the verified cull's proxy), which the
+    /// cache leaves free.
+    pub reserved_bytes: u64,
     /// Bytes read from the source, over all frames.
     pub bytes_read: u64,
     /// Bricks read from the source, over all frames.
@@ -154,9 +159,31 @@ impl BrickCache {
         BrickCache {
             source,
             budget,
+            reserved: AtomicU64::new(0),
             lru: Mutex::default(),
             totals: ReadCounts::default(),
         }
+    }
+
+    /// Charges `bytes` held elsewhere for the same volume (the verified cull's proxy: on a
+    /// 2048³ volume about 2.8 GB) to the budget, in addition to what was charged before: the
+    /// cache then keeps at most the rest, evicting down to it as it reads. Without this the
+    /// process holds the budget's worth of bricks plus the proxy.
+    pub fn reserve(&self, bytes: u64) {
+        self.reserved.fetch_add(bytes, Ordering::Relaxed);
+    }
+
+    /// The bytes the cache may hold: the budget less what is reserved and, for a Zarr
+    /// source, its decoded chunks' share.
+    #[must_use]
+    pub fn brick_budget(&self) -> u64 {
+        let chunks = self
+            .source
+            .zarr()
+            .map_or(0, super::ZarrSource::chunk_budget);
+        self.budget
+            .saturating_sub(chunks)
+            .saturating_sub(self.reserved.load(Ordering::Relaxed))
     }
 
     /// The source.
@@ -206,12 +233,7 @@ impl BrickCache {
             return Ok(held);
         }
         let start = counts.start.get().copied().unwrap_or(0);
-        // A Zarr source's decoded chunks hold their share of the budget.
-        let chunks = self
-            .source
-            .zarr()
-            .map_or(0, super::ZarrSource::chunk_budget);
-        l.insert(id, &copy, self.budget.saturating_sub(chunks), start);
+        l.insert(id, &copy, self.brick_budget(), start);
         Ok(copy)
     }
 
@@ -225,6 +247,7 @@ impl BrickCache {
             cache_peak_bytes: l.peak,
             evictions: l.evictions,
             not_cached: l.passed,
+            reserved_bytes: self.reserved.load(Ordering::Relaxed),
             bytes_read: self.totals.bytes_read(),
             bricks_read: self.totals.bricks_read(),
             cache_hits: self.totals.cache_hits(),

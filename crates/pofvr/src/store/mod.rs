@@ -21,6 +21,8 @@ mod source;
 #[cfg(test)]
 mod test;
 #[cfg(test)]
+mod test_pof;
+#[cfg(test)]
 mod test_zarr;
 mod zarr_source;
 

@@ -11,14 +11,19 @@ use crate::volume::phantom::Phantom;
 use crate::volume::{raw, Endian, RawSpec, Volume, VoxelData};
 use crate::with_voxels;
 
-fn tmp(name: &str) -> PathBuf {
+pub(super) fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("pofvr-store-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
 
 /// `volume` written as a raw file with `offset` bytes of header, in `endian` order.
-fn write_raw(volume: &Volume, dir: &Path, offset: usize, endian: Endian) -> (PathBuf, RawSpec) {
+pub(super) fn write_raw(
+    volume: &Volume,
+    dir: &Path,
+    offset: usize,
+    endian: Endian,
+) -> (PathBuf, RawSpec) {
     let mut bytes = vec![0xAB; offset];
     with_voxels!(volume.data(), v => {
         for x in v {
@@ -138,6 +143,41 @@ fn the_cache_keeps_its_budget_evicting_the_least_recently_used() {
 }
 
 #[test]
+fn bytes_reserved_elsewhere_come_out_of_the_caches_budget() {
+    let vol = head_i16();
+    let grid = BrickGrid::from_volume(&vol, 8).unwrap();
+    let one = (0..3)
+        .map(|i| {
+            BrickCopy::apron_box(&grid, BrickId(i))
+                .1
+                .iter()
+                .product::<usize>() as u64
+                * 2
+        })
+        .max()
+        .unwrap();
+    // Room for three bricks, one of which is reserved (the proxy's share).
+    let cache = BrickCache::new(BrickSource::Memory, 3 * one);
+    cache.reserve(one);
+    assert_eq!(cache.brick_budget(), 2 * one);
+    let frame = ReadCounts::default();
+    for i in 0..3 {
+        cache.get(&vol, &grid, BrickId(i), &frame).unwrap();
+    }
+    let s = cache.summary();
+    assert_eq!(s.reserved_bytes, one);
+    assert!(s.cache_peak_bytes <= 2 * one, "{s:?}");
+    assert_eq!(s.not_cached, 1, "{s:?}");
+    // Reserving the whole budget leaves the cache nothing: bricks are read and passed on.
+    cache.reserve(2 * one);
+    assert_eq!(cache.brick_budget(), 0);
+    let next = ReadCounts::default();
+    cache.get(&vol, &grid, BrickId(3), &next).unwrap();
+    cache.get(&vol, &grid, BrickId(3), &next).unwrap();
+    assert_eq!((next.bricks_read(), next.cache_hits()), (2, 0));
+}
+
+#[test]
 fn frames_that_need_more_than_the_budget_find_a_budgets_worth_of_bricks_next_time() {
     let vol = head_i16();
     let grid = BrickGrid::from_volume(&vol, 8).unwrap();
@@ -198,14 +238,18 @@ fn budgeted_frames_equal_unbudgeted_ones_in_every_cull_mode_and_rank_count() {
         .unwrap();
     assert_eq!(held.grid().ranges(), plain.grid().ranges());
     let table = held.build_pofs(&build).unwrap();
+    // Built from the store's slabs, not the mapping: the same table, byte for byte.
+    let (a, b) = (dir.join("plain.pof"), dir.join("held.pof"));
+    plain.build_pofs(&build).unwrap().save(&a).unwrap();
+    table.save(&b).unwrap();
+    assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
     let held = held.with_pofs(table).unwrap();
     assert!(held.store().is_some_and(|s| s.source().is_file()));
     let cam = camera(&vol, 30.0, 48);
     let base = FrameRequest::new(&cam);
     for ranks in [1, 3] {
-        let modes: [(Cull<'_>, Cull<'_>); 6] = [
+        let modes: [(Cull<'_>, Cull<'_>); 5] = [
             (Cull::None, Cull::None),
-            (Cull::Exact, Cull::Exact),
             (plain.default_cull(), held.default_cull()),
             (
                 Cull::PofSet(plain.pofs().unwrap()),
@@ -261,13 +305,33 @@ fn budgeted_frames_equal_unbudgeted_ones_in_every_cull_mode_and_rank_count() {
             assert_eq!(want.stats.bytes_read, 0);
         }
     }
+    // What samples the whole lattice would map the whole file: refused, naming it.
+    for (what, e) in [
+        (
+            "exact",
+            held.render(&base.clone().cull(Cull::Exact)).unwrap_err(),
+        ),
+        ("whole", held.render_reference(&base).unwrap_err()),
+    ] {
+        let e = e.to_string();
+        assert!(e.contains(&path.display().to_string()), "{what}: {e}");
+        assert!(e.contains("does not fit the memory budget"), "{what}: {e}");
+    }
+    assert!(plain.render(&base.clone().cull(Cull::Exact)).is_ok());
     // Without an engine named, a budgeted scene renders with the brick engine.
     let none = held.render(&base).unwrap();
     assert_eq!(none.stats.engine, "bricks");
     let want = plain.render(&base.clone().engine(Engine::Bricks)).unwrap();
     assert_eq!(none.image.pixels(), want.image.pixels());
     assert_eq!(plain.render(&base).unwrap().stats.engine, "march");
-    assert!(held.store().unwrap().summary().evictions > 0);
+    let summary = held.store().unwrap().summary();
+    assert!(summary.evictions + summary.not_cached > 0, "{summary:?}");
+    // The verified frames' proxy, and the extinction it caches, are charged to the budget.
+    let cells: usize = vol.dims().iter().map(|n| n.div_ceil(4)).product();
+    assert!(
+        summary.reserved_bytes >= 4 * cells as u64 * 2,
+        "{summary:?}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 

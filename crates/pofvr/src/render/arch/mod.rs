@@ -11,7 +11,6 @@ pub(crate) mod x86_64;
 
 use super::lattice::IndexRay;
 use super::sampler::TrilinearSampler;
-use super::skip::Skip;
 use super::transfer_function::ClassifierView;
 #[cfg(not(target_arch = "x86_64"))]
 use crate::volume::Voxel;
@@ -71,28 +70,34 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
     generic::march(p, tri, ray, range, acc)
 }
 
-/// Composites samples `range` of `ray` behind `acc` as [`march`] does, bit for bit,
-/// leaving out the samples in the empty cells of `skip`'s occupancy (counted in
-/// `skip.skipped`): the AVX2 loop tests each group of eight samples' cells before it gathers
-/// their corners, and leaps over cubes of empty cells from within. Returns the samples
-/// taken, or `None` (having done nothing) where the AVX2 loop does not run; the caller then
-/// walks the occupancy itself.
+/// Whether [`march_packet`] runs for `p` and `tri`: the AVX2 loop over packets of eight
+/// rays, where the CPU has AVX2 and the scalar loop is not asked for.
 #[inline(always)]
-pub(crate) fn march_skip<T: Gather>(
+pub(crate) fn packets<T: Gather>(p: &MarchParams<'_>, tri: &TrilinearSampler<'_, T>) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return !p.scalar && p.avx2 && x86_64::avx2::fits(tri);
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (p, tri);
+        false
+    }
+}
+
+/// Marches the eight rays of `pk` through the whole volume, each as [`march`] would, bit
+/// for bit, leaving out the samples in the empty cells of `tab`'s occupancy. Only where
+/// [`packets`] holds (it returns `None`, having done nothing, elsewhere).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn march_packet<T: Gather>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
-    ray: &IndexRay,
-    range: (i32, i32),
-    acc: &mut [f32; 4],
-    skip: &mut Skip<'_>,
-) -> Option<u64> {
-    #[cfg(target_arch = "x86_64")]
-    if !p.scalar {
-        return x86_64::march_skip(p, tri, ray, range, acc, skip);
+    tab: &x86_64::packet::PacketTables<'_>,
+    pk: &mut x86_64::packet::Packet,
+) -> Option<x86_64::packet::PacketStats> {
+    if p.scalar {
+        return None;
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (tri, ray, range, acc, skip);
-    None
+    x86_64::march_packet(p, tri, tab, pk)
 }
 
 /// The loop [`march`] takes with `p`: "avx2", "sse2" or "scalar".

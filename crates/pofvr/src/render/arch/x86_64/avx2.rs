@@ -21,21 +21,19 @@
 
 use std::arch::x86_64::{
     __m128, __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_si256,
-    _mm256_castsi256_ps, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvtsi256_si32,
-    _mm256_cvttps_epi32, _mm256_i32gather_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps,
-    _mm256_mul_ps, _mm256_mullo_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32,
-    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srai_epi32,
-    _mm256_srli_epi32, _mm256_storeu_si256, _mm256_sub_ps, _mm_add_ps, _mm_loadu_ps, _mm_mul_ps,
-    _mm_set1_ps, _mm_storeu_ps,
+    _mm256_castsi256_ps, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32,
+    _mm256_i32gather_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps,
+    _mm256_mullo_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps,
+    _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srai_epi32, _mm256_srli_epi32,
+    _mm256_storeu_si256, _mm256_sub_ps, _mm_add_ps, _mm_loadu_ps, _mm_mul_ps, _mm_set1_ps,
+    _mm_storeu_ps,
 };
 
 use super::super::generic::{AMBIENT, DIFFUSE};
 use super::super::MarchParams;
 
 use crate::render::lattice::IndexRay;
-use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
 use crate::render::sampler::TrilinearSampler;
-use crate::render::skip::Skip;
 use crate::render::transfer_function::BIN_MAX;
 use crate::volume::Voxel;
 
@@ -194,10 +192,6 @@ impl Gather8 for f32 {
     }
 }
 
-/// The fewest samples a leap from within the loop must cover to be taken (when it does
-/// not cover the whole group): shorter ones cost more than testing the group's cells.
-const LEAP_GROUP: i32 = 4;
-
 /// Whether [`march`] can take `tri`: 32-bit lane indices, and the unit x step the type's
 /// gather needs.
 pub(crate) fn fits<T: Gather8, const COPY: bool>(tri: &TrilinearSampler<'_, T, COPY>) -> bool {
@@ -215,7 +209,7 @@ pub(crate) struct Acc {
 /// the gradients `g` (index space) with the volume's `spacing` and the ray's `dir`.
 #[target_feature(enable = "avx2")]
 #[inline]
-fn lambert8(g: [__m256; 3], spacing: [__m256; 3], dir: [__m256; 3]) -> __m256 {
+pub(crate) fn lambert8(g: [__m256; 3], spacing: [__m256; 3], dir: [__m256; 3]) -> __m256 {
     use std::arch::x86_64::{
         _mm256_andnot_ps, _mm256_blendv_ps, _mm256_cmp_ps, _mm256_div_ps, _mm256_sqrt_ps,
         _CMP_LE_OQ,
@@ -251,21 +245,15 @@ fn lambert8(g: [__m256; 3], spacing: [__m256; 3], dir: [__m256; 3]) -> __m256 {
 /// # Safety
 /// AVX2 is available and [`fits`] holds.
 #[target_feature(enable = "avx2")]
-pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool, const SKIP: bool>(
+pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T, COPY>,
     ray: &IndexRay,
     (k0, k1): (i32, i32),
     acc: &mut Acc,
-    mut skip: Option<&mut Skip<'_>>,
 ) -> (u64, Option<i32>) {
     debug_assert!(fits(tri));
     debug_assert_eq!(SHADE, p.shade.is_some());
-    // Occupancy cells are indexed by the trilinear cells of the whole volume.
-    debug_assert!(!SKIP || (!COPY && skip.is_some()));
-    let (n0, n01) = skip.as_ref().map_or((0, 0), |s| (s.n[0], s.n[0] * s.n[1]));
-    let (n0, n01) = (_mm256_set1_epi32(n0), _mm256_set1_epi32(n01));
-    let mut cells = [0u32; 8];
     let (cls, step, ert) = (p.cls, p.step, p.ert);
     let splat = |v: [f32; 3]| std::array::from_fn(|a| _mm256_set1_ps(v[a]));
     let (spacing, dir) = (splat(p.shade.unwrap_or([1.0; 3])), splat(ray.dir));
@@ -315,64 +303,14 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool, cons
         );
         let mut base = _mm256_setzero_si256();
         let mut f = [zero; 3];
-        let mut cell = [_mm256_setzero_si256(); 3];
         for (a, &(o, d, max, origin, last)) in axes.iter().enumerate() {
             let p = _mm256_add_ps(o, _mm256_mul_ps(t, d));
             let x = _mm256_sub_ps(_mm256_min_ps(_mm256_max_ps(p, zero), max), origin);
             let i = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_max_ps(x, zero), last));
             f[a] = _mm256_sub_ps(x, _mm256_cvtepi32_ps(i));
             base = _mm256_add_epi32(base, _mm256_mullo_epi32(i, strides[a]));
-            cell[a] = _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i);
         }
         let count = (k1 - k).min(8);
-        if SKIP {
-            // SAFETY: SKIP is only set with a `skip`.
-            let sk = unsafe { skip.as_deref_mut().unwrap_unchecked() };
-            // Each lane's occupancy cell, from the trilinear cell the lane samples in.
-            let idx = _mm256_add_epi32(
-                _mm256_add_epi32(
-                    _mm256_mullo_epi32(cell[2], n01),
-                    _mm256_mullo_epi32(cell[1], n0),
-                ),
-                cell[0],
-            );
-            // SAFETY: `cells` holds eight u32.
-            unsafe { _mm256_storeu_si256(cells.as_mut_ptr().cast(), idx) };
-            // SAFETY: trilinear cells are at most the last one per axis, so their
-            // occupancy cells are inside the grid `leap` covers.
-            let leap = |j: usize| unsafe { *sk.leap.get_unchecked(cells[j] as usize) };
-            let first = leap(0);
-            if first & OCCUPIED != 0 {
-                // The first sample may be opaque: gather (below).
-            } else if Skip::leaps(first) {
-                // Lane 0's cube of empty cells: leap past it from within the loop.
-                let c = cell.map(|c| _mm256_cvtsi256_si32(c));
-                let kb = sk.leap_end(k, c, first, k1);
-                if kb - k >= count.min(LEAP_GROUP) {
-                    sk.skipped += (kb - k) as u64;
-                    k = kb;
-                    continue;
-                }
-            }
-            if first & OCCUPIED == 0 {
-                // The lanes in occupied cells, as bits.
-                let occupied =
-                    (1..count as usize).fold(0u32, |m, j| m | (u32::from(leap(j) >> 7) << j));
-                if occupied == 0 {
-                    // Eight samples in empty cells: no corners to gather.
-                    sk.skipped += count as u64;
-                    k += 8;
-                    continue;
-                }
-                // The group starts again at its first sample in an occupied cell: the
-                // samples before it are in empty cells, and the eight gathered from there
-                // reach further into the occupied ones.
-                let j = occupied.trailing_zeros() as i32;
-                sk.skipped += j as u64;
-                k += j;
-                continue;
-            }
-        }
         if _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(base, limit))) != 0 {
             return (n, Some(k));
         }

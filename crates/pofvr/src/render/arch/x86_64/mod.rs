@@ -2,12 +2,13 @@
 //! for the last cells of the data, where the eight-lane gather would read past the end.
 
 pub(crate) mod avx2;
+pub(crate) mod packet;
 pub(crate) mod sse2;
 
 use super::{Gather, MarchParams};
 use crate::render::lattice::IndexRay;
 use crate::render::sampler::TrilinearSampler;
-use crate::render::skip::Skip;
+use packet::{Packet, PacketStats, PacketTables};
 
 /// [`super::march`].
 #[inline(always)]
@@ -23,9 +24,9 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
         // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked.
         let (n, rest) = unsafe {
             if p.shade.is_some() {
-                avx2::march::<T, COPY, true, false>(p, tri, ray, range, &mut a, None)
+                avx2::march::<T, COPY, true>(p, tri, ray, range, &mut a)
             } else {
-                avx2::march::<T, COPY, false, false>(p, tri, ray, range, &mut a, None)
+                avx2::march::<T, COPY, false>(p, tri, ray, range, &mut a)
             }
         };
         avx2::store(&a, acc);
@@ -38,33 +39,25 @@ pub(crate) fn march<T: Gather, const COPY: bool>(
     sse2::march(p, tri, ray, range, acc)
 }
 
-/// [`super::march_skip`] where the AVX2 loop runs: `None` elsewhere.
+/// [`super::march_packet`] where the AVX2 loop runs: `None` (having done nothing)
+/// elsewhere.
 #[inline(always)]
-pub(crate) fn march_skip<T: Gather>(
+pub(crate) fn march_packet<T: Gather>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
-    ray: &IndexRay,
-    range: (i32, i32),
-    acc: &mut [f32; 4],
-    skip: &mut Skip<'_>,
-) -> Option<u64> {
+    tab: &PacketTables<'_>,
+    pk: &mut Packet,
+) -> Option<PacketStats> {
     if !(p.avx2 && avx2::fits(tri)) {
         return None;
     }
-    let mut a = avx2::load(acc);
-    // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked.
-    let (n, rest) = unsafe {
+    // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked; the tables
+    // are the caller's, built for this volume and classification.
+    Some(unsafe {
         if p.shade.is_some() {
-            avx2::march::<T, false, true, true>(p, tri, ray, range, &mut a, Some(skip))
+            packet::march8::<T, true>(p, tri, tab, pk)
         } else {
-            avx2::march::<T, false, false, true>(p, tri, ray, range, &mut a, Some(skip))
+            packet::march8::<T, false>(p, tri, tab, pk)
         }
-    };
-    avx2::store(&a, acc);
-    Some(match rest {
-        None => n,
-        // The last cells of the data: the one-sample loop finishes the ray, without
-        // skipping (a few samples at most).
-        Some(k) => n + sse2::march(p, tri, ray, (k, range.1), acc),
     })
 }

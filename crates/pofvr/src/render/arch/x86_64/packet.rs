@@ -1,0 +1,485 @@
+//! The march engine's AVX2 loop over packets of eight rays: one sample of each of eight
+//! neighbouring rays per lane, at the same lattice index.
+//!
+//! The one-ray loop ([`super::avx2::march`]) puts eight samples of one ray in the lanes, so
+//! the composite, which carries the accumulator from sample to sample, runs one sample at a
+//! time, and every group that meets empty space or a terminated ray pays a branch and a
+//! scalar fold. Eight rays in the lanes composite lane-wise instead: a ray's samples stay
+//! in order, each lane performs the float operations of the scalar definition
+//! ([`super::super::generic::march`]) on its own ray's sample `k` — position `o + (k·step)·d`,
+//! cell, corners, the trilinear lerps, the bin, `w = 1 − α`, `acc += w·s` — so every pixel is
+//! bit for bit the reference's. A lane takes no part (its accumulator is left as it is) while
+//! `k` is outside its ray's samples, once its opacity has reached the termination threshold,
+//! and for a sample of zero opacity (which the reference skips).
+//!
+//! Empty space is skipped for the packet as a whole, by the rule of [`Skip::leap_end`]
+//! evaluated lane-wise: where no live lane's sample lies in an occupied cell, each live lane
+//! finds the first sample past the cube of empty cells around its own (checked by the
+//! sampler's own cells), and the packet moves on to the least of those, and to no lane's
+//! first sample past its start: every sample of every live lane before it lies in an empty
+//! cell, of zero opacity.
+//!
+//! Neighbouring pixels' rays (a 4 × 2 tile) cross the same cells within a voxel of each
+//! other, so the lanes mostly agree on where empty space begins and ends.
+
+use std::arch::x86_64::{
+    __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_ps, _mm256_and_si256,
+    _mm256_andnot_si256, _mm256_blendv_ps, _mm256_castps_si256, _mm256_castsi256_ps, _mm256_cmp_ps,
+    _mm256_cmpeq_epi32, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32, _mm256_div_ps,
+    _mm256_loadu_si256, _mm256_max_epi32, _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps,
+    _mm256_movemask_ps, _mm256_mul_ps, _mm256_mullo_epi32, _mm256_or_si256, _mm256_set1_epi32,
+    _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32,
+    _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ,
+    _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
+};
+
+use super::super::MarchParams;
+use super::avx2::{lambert8, Gather8};
+use crate::render::lattice::IndexRay;
+use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
+use crate::render::sampler::TrilinearSampler;
+use crate::render::skip::LEAP_MIN;
+
+/// Rays per packet.
+pub(crate) const LANES: usize = 8;
+
+/// One packet: eight rays (a lane whose range is empty takes no part), the lattice indices
+/// `k0..k1` each claims, and their premultiplied RGBA so far.
+pub(crate) struct Packet {
+    pub(crate) rays: [IndexRay; LANES],
+    pub(crate) k0: [i32; LANES],
+    pub(crate) k1: [i32; LANES],
+    pub(crate) acc: [[f32; 4]; LANES],
+}
+
+/// What the packet loop reads besides the volume and the classification: the occupancy's
+/// leap entries ([`crate::render::occupancy::Occupancy::leaps`]) and its cells per axis.
+pub(crate) struct PacketTables<'t> {
+    pub(crate) leap: &'t [u8],
+    pub(crate) cells: [i32; 3],
+}
+
+/// What a packet took: lane samples marched, and lane samples leapt over.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct PacketStats {
+    pub(crate) samples: u64,
+    pub(crate) skipped: u64,
+}
+
+/// Lanes of `m` (a comparison mask) as bits.
+#[inline(always)]
+fn bits(m: __m256i) -> u32 {
+    // SAFETY: AVX is enabled wherever this is inlined (the callers' target features).
+    unsafe { _mm256_movemask_ps(_mm256_castsi256_ps(m)) as u32 }
+}
+
+/// Lane-wise `a <= x && x <= b`.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn within(a: __m256i, x: __m256i, b: __m256i) -> __m256i {
+    let out = _mm256_or_si256(_mm256_cmpgt_epi32(a, x), _mm256_cmpgt_epi32(x, b));
+    _mm256_andnot_si256(out, _mm256_set1_epi32(-1))
+}
+
+/// The least of the eight lanes.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn hmin(v: __m256i) -> i32 {
+    use std::arch::x86_64::{
+        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm_cvtsi128_si32, _mm_min_epi32,
+        _mm_shuffle_epi32,
+    };
+    let m = _mm_min_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
+    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
+    _mm_cvtsi128_si32(m)
+}
+
+/// Marches `pk` front to back through the volume of `tri`, skipping the empty cells of
+/// `tab`, shaded when `SHADE` (then `p.shade` is set); see the [module](self).
+///
+/// # Safety
+/// AVX2 is available and [`super::avx2::fits`] holds; `tab` was built for this volume
+/// and classification, with the padding it documents.
+#[target_feature(enable = "avx2")]
+pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
+    p: &MarchParams<'_>,
+    tri: &TrilinearSampler<'_, T>,
+    tab: &PacketTables<'_>,
+    pk: &mut Packet,
+) -> PacketStats {
+    debug_assert!(super::avx2::fits(tri));
+    debug_assert_eq!(SHADE, p.shade.is_some());
+    let mut st = PacketStats::default();
+    let lane = |f: &dyn Fn(usize) -> f32| vec8(std::array::from_fn(f));
+    let o = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].o[a]));
+    let d = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].d[a]));
+    let dir = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].dir[a]));
+    // `1 / d`, 0 where `d` is 0: for the leap estimates only.
+    let inv = d.map(|d| {
+        let zero = _mm256_cmp_ps::<_CMP_EQ_OQ>(d, _mm256_setzero_ps());
+        _mm256_blendv_ps(
+            _mm256_div_ps(_mm256_set1_ps(1.0), d),
+            _mm256_setzero_ps(),
+            zero,
+        )
+    });
+    let spacing: [__m256; 3] = p.shade.unwrap_or([1.0; 3]).map(|s| _mm256_set1_ps(s));
+    // SAFETY: `k0` and `k1` hold eight i32.
+    let (k0v, k1v) = unsafe {
+        (
+            _mm256_loadu_si256(pk.k0.as_ptr().cast()),
+            _mm256_loadu_si256(pk.k1.as_ptr().cast()),
+        )
+    };
+    let k1f = _mm256_cvtepi32_ps(k1v);
+    let has = _mm256_cmpgt_epi32(k1v, k0v);
+    if bits(has) == 0 {
+        return st;
+    }
+    let big = _mm256_set1_epi32(i32::MAX);
+    let one = _mm256_set1_epi32(1);
+    let mut k = hmin(blend_i(big, k0v, has));
+    let mut acc = [0, 1, 2, 3].map(|c| lane(&|j| pk.acc[j][c]));
+    let (step, ert) = (p.step, _mm256_set1_ps(p.ert));
+    let stepv = _mm256_set1_ps(step);
+    let inv_step = _mm256_set1_ps(1.0 / step);
+    let zero = _mm256_setzero_ps();
+    let maxv = tri.max.map(|m| _mm256_set1_ps(m));
+    // Cells are below 2^24 per axis, so the floats are exact.
+    let last = tri.last_cell.map(|c| _mm256_set1_ps(c as f32));
+    let [_, s1, s2] = tri.stride;
+    let strides = [1, s1 as i32, s2 as i32].map(|s| _mm256_set1_epi32(s));
+    let nlast = tab.cells.map(|n| _mm256_set1_epi32(n - 1));
+    let (n0, n01) = (
+        _mm256_set1_epi32(tab.cells[0]),
+        _mm256_set1_epi32(tab.cells[0] * tab.cells[1]),
+    );
+    let v = tri.v;
+    let [sx, sy, sz] = tri.step;
+    // The largest base whose reads stay inside the data; -1 when none does.
+    let limit = (v.len() as i64 - 1 - (sx + sy + sz + T::OVERREAD) as i64).max(-1) as i32;
+    let limit = _mm256_set1_epi32(limit);
+    let cls = p.cls;
+    let rgba = cls.rgba.as_ptr().cast::<f32>();
+    let (lo, scale, bin_max) = (
+        _mm256_set1_ps(cls.lo),
+        _mm256_set1_ps(cls.scale),
+        _mm256_set1_ps(crate::render::transfer_function::BIN_MAX),
+    );
+    // The occupancy cell per axis of each lane's sample at `t` (lane-wise `Skip::cell`).
+    let cells_at = |t: __m256| {
+        [0, 1, 2].map(|a| {
+            let p = _mm256_add_ps(o[a], _mm256_mul_ps(t, d[a]));
+            let c = _mm256_min_ps(_mm256_min_ps(_mm256_max_ps(p, zero), maxv[a]), last[a]);
+            _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(_mm256_cvttps_epi32(c))
+        })
+    };
+    // The occupancy cells of the last sample looked up (none yet), their entries, and
+    // which of them are occupied, as bits.
+    let mut last_idx = _mm256_set1_epi32(-1);
+    let mut lv = [0i32; LANES];
+    let mut occ_bits = 0u32;
+    loop {
+        let kv = _mm256_set1_epi32(k);
+        // Lanes whose ray claims sample k and has not terminated.
+        let started = _mm256_cmpgt_epi32(_mm256_add_epi32(kv, one), k0v);
+        let before_end = _mm256_cmpgt_epi32(k1v, kv);
+        // As the reference's `acc[3] >= ert` stop, negated.
+        let open = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
+        let live = _mm256_and_si256(_mm256_and_si256(started, before_end), open);
+        // Lanes yet to start.
+        let pending = _mm256_andnot_si256(started, has);
+        let live_bits = bits(live);
+        if live_bits == 0 {
+            if bits(pending) == 0 {
+                break;
+            }
+            k = hmin(blend_i(big, k0v, pending));
+            continue;
+        }
+        let t = _mm256_set1_ps(k as f32 * step);
+        let mut base = _mm256_setzero_si256();
+        let mut f = [zero; 3];
+        let mut cell = [_mm256_setzero_si256(); 3];
+        for a in 0..3 {
+            // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
+            let p = _mm256_add_ps(o[a], _mm256_mul_ps(t, d[a]));
+            let x = _mm256_min_ps(_mm256_max_ps(p, zero), maxv[a]);
+            let i = _mm256_cvttps_epi32(_mm256_min_ps(x, last[a]));
+            f[a] = _mm256_sub_ps(x, _mm256_cvtepi32_ps(i));
+            base = _mm256_add_epi32(base, _mm256_mullo_epi32(i, strides[a]));
+            cell[a] = _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i);
+        }
+        let idx = _mm256_add_epi32(
+            _mm256_add_epi32(
+                _mm256_mullo_epi32(cell[2], n01),
+                _mm256_mullo_epi32(cell[1], n0),
+            ),
+            cell[0],
+        );
+        // The entries of the previous sample's cells serve while no lane changed cell
+        // (most samples, as a cell is several samples long).
+        if bits(_mm256_cmpeq_epi32(idx, last_idx)) != 0xFF {
+            last_idx = idx;
+            let mut ci = [0u32; LANES];
+            // SAFETY: `ci` holds eight u32.
+            unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
+            // Scalar loads: the lanes' entries are wanted as bits, and eight byte loads
+            // cost less than a gather.
+            occ_bits = 0;
+            for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
+                // SAFETY: every lane's cell is inside the grid (positions are clamped).
+                let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+                *l = i32::from(e);
+                occ_bits |= u32::from(e & OCCUPIED != 0) << j;
+            }
+        }
+        if occ_bits & live_bits == 0 {
+            // SAFETY: `lv` holds eight i32.
+            let leap = unsafe { _mm256_loadu_si256(lv.as_ptr().cast()) };
+            // Every live lane is in an empty cell: the packet leaps.
+            let kb = leap_end(
+                kv,
+                &cell,
+                leap,
+                &LeapRay {
+                    o,
+                    d,
+                    inv,
+                    k1v,
+                    k1f,
+                    nlast,
+                    stepv,
+                    inv_step,
+                },
+                &cells_at,
+            );
+            let kb = blend_i(big, kb, live);
+            let kb = _mm256_min_epi32(kb, blend_i(big, k0v, pending));
+            let next = hmin(kb).max(k + 1);
+            st.skipped += u64::from(live_bits.count_ones()) * (next - k) as u64;
+            k = next;
+            continue;
+        }
+        // SAFETY: every lane's position is clamped into the data, so its cell's corners
+        // are inside `v`; past `limit` the gather of a wider word would read past the end.
+        let c = unsafe {
+            if bits(_mm256_cmpgt_epi32(base, limit)) == 0 {
+                T::corners8(v, base, tri.step)
+            } else {
+                corners_exact(v, base, tri.step)
+            }
+        };
+        let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
+        let lerp = |a: __m256, b: __m256, w: __m256| {
+            _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w))
+        };
+        let c00 = lerp(c000, c100, f[0]);
+        let c10 = lerp(c010, c110, f[0]);
+        let c01 = lerp(c001, c101, f[0]);
+        let c11 = lerp(c011, c111, f[0]);
+        let c0 = lerp(c00, c10, f[1]);
+        let c1 = lerp(c01, c11, f[1]);
+        let value = lerp(c0, c1, f[2]);
+        // As `ClassifierView::sample`: `maxps` returns its second operand (0) for NaN.
+        let x = _mm256_min_ps(
+            _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(value, lo), scale), zero),
+            bin_max,
+        );
+        let bin = _mm256_cvttps_epi32(x);
+        // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
+        let [r, g, b, alpha] = unsafe { rgba8(rgba, bin) };
+        st.samples += u64::from(live_bits.count_ones());
+        let opaque = _mm256_and_ps(
+            _mm256_castsi256_ps(live),
+            _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),
+        );
+        if _mm256_movemask_ps(opaque) != 0 {
+            let mut s = [r, g, b];
+            if SHADE {
+                // `Cell::gradient`, lane-wise.
+                let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
+                let (d01, d11) = (_mm256_sub_ps(c101, c001), _mm256_sub_ps(c111, c011));
+                let (e0, e1) = (_mm256_sub_ps(c10, c00), _mm256_sub_ps(c11, c01));
+                let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
+                let g = [
+                    lerp(x0, x1, f[2]),
+                    lerp(e0, e1, f[2]),
+                    _mm256_sub_ps(c1, c0),
+                ];
+                let l = lambert8(g, spacing, dir);
+                s = s.map(|s| _mm256_mul_ps(s, l));
+            }
+            let w = _mm256_sub_ps(_mm256_set1_ps(1.0), acc[3]);
+            for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
+                *a = _mm256_blendv_ps(*a, _mm256_add_ps(*a, _mm256_mul_ps(w, s)), opaque);
+            }
+        }
+        k += 1;
+    }
+    let mut out = [[0f32; LANES]; 4];
+    for (o, a) in out.iter_mut().zip(acc) {
+        // SAFETY: `o` holds eight f32.
+        unsafe { _mm256_storeu_ps(o.as_mut_ptr(), a) };
+    }
+    for (j, px) in pk.acc.iter_mut().enumerate() {
+        *px = [out[0][j], out[1][j], out[2][j], out[3][j]];
+    }
+    st
+}
+
+/// The table entries `rgba[bin]` of the eight lanes' bins, as red, green, blue and
+/// opacity vectors: eight loads of an entry and a transpose, cheaper than four gathers.
+///
+/// # Safety
+/// `rgba` holds an entry (four floats) for every lane's bin.
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn rgba8(rgba: *const f32, bin: __m256i) -> [__m256; 4] {
+    use std::arch::x86_64::{
+        _mm256_castpd_ps, _mm256_castps128_ps256, _mm256_castps_pd, _mm256_insertf128_ps,
+        _mm256_unpackhi_pd, _mm256_unpackhi_ps, _mm256_unpacklo_pd, _mm256_unpacklo_ps,
+        _mm_loadu_ps,
+    };
+    let mut b = [0u32; LANES];
+    // SAFETY: `b` holds eight u32; every entry is inside the table (caller).
+    unsafe {
+        _mm256_storeu_si256(b.as_mut_ptr().cast(), bin);
+        let q = |j: usize| _mm_loadu_ps(rgba.add(b[j] as usize * 4));
+        let pair = |j: usize| _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(q(j)), q(j + 4));
+        let (t0, t1, t2, t3) = (pair(0), pair(1), pair(2), pair(3));
+        // [r0 r1 g0 g1 | r4 r5 g4 g5], [b0 b1 a0 a1 | b4 b5 a4 a5], and lanes 2, 3, 6, 7.
+        let (u0, u1) = (_mm256_unpacklo_ps(t0, t1), _mm256_unpackhi_ps(t0, t1));
+        let (u2, u3) = (_mm256_unpacklo_ps(t2, t3), _mm256_unpackhi_ps(t2, t3));
+        let lo = |a: __m256, b: __m256| {
+            _mm256_castpd_ps(_mm256_unpacklo_pd(_mm256_castps_pd(a), _mm256_castps_pd(b)))
+        };
+        let hi = |a: __m256, b: __m256| {
+            _mm256_castpd_ps(_mm256_unpackhi_pd(_mm256_castps_pd(a), _mm256_castps_pd(b)))
+        };
+        [lo(u0, u2), hi(u0, u2), lo(u1, u3), hi(u1, u3)]
+    }
+}
+
+/// `m ? b : a`, lane-wise on integers.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn blend_i(a: __m256i, b: __m256i, m: __m256i) -> __m256i {
+    _mm256_castps_si256(_mm256_blendv_ps(
+        _mm256_castsi256_ps(a),
+        _mm256_castsi256_ps(b),
+        _mm256_castsi256_ps(m),
+    ))
+}
+
+/// Eight floats as a vector.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn vec8(v: [f32; LANES]) -> __m256 {
+    // SAFETY: `v` holds eight f32.
+    unsafe { std::arch::x86_64::_mm256_loadu_ps(v.as_ptr()) }
+}
+
+/// A packet's rays as [`leap_end`] reads them.
+struct LeapRay {
+    o: [__m256; 3],
+    d: [__m256; 3],
+    inv: [__m256; 3],
+    k1v: __m256i,
+    k1f: __m256,
+    nlast: [__m256i; 3],
+    stepv: __m256,
+    inv_step: __m256,
+}
+
+/// [`crate::render::skip::Skip::leap_end`] lane-wise: each lane's sample `k` lies in the
+/// empty cell `c` with entry `leap`; the first sample, in `k + 1 ..= k1`, past the cube of
+/// empty cells around it, every sample before it checked by the sampler's own cells.
+/// Lanes whose entry is below [`LEAP_MIN`] get the exit of their own cell (a cube of one).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn leap_end(
+    kv: __m256i,
+    c: &[__m256i; 3],
+    leap: __m256i,
+    r: &LeapRay,
+    cells_at: &impl Fn(__m256) -> [__m256i; 3],
+) -> __m256i {
+    let one = _mm256_set1_epi32(1);
+    // The cube's half-width: distance − 1 where leaps are worth it, else the cell alone.
+    let far = _mm256_cmpgt_epi32(leap, _mm256_set1_epi32(LEAP_MIN - 1));
+    let rad = _mm256_and_si256(_mm256_sub_epi32(leap, one), far);
+    let zero_i = _mm256_setzero_si256();
+    let zero = _mm256_setzero_ps();
+    let mut lo = [zero_i; 3];
+    let mut hi = [zero_i; 3];
+    let mut te = _mm256_set1_ps(f32::INFINITY);
+    for a in 0..3 {
+        lo[a] = _mm256_max_epi32(_mm256_sub_epi32(c[a], rad), zero_i);
+        hi[a] = _mm256_min_epi32(_mm256_add_epi32(c[a], rad), r.nlast[a]);
+        let pos = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(r.d[a], zero));
+        let neg = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(r.d[a], zero));
+        let up = _mm256_and_si256(pos, _mm256_cmpgt_epi32(r.nlast[a], hi[a]));
+        let down = _mm256_and_si256(neg, _mm256_cmpgt_epi32(lo[a], zero_i));
+        let face = blend_i(
+            _mm256_slli_epi32::<{ CELL_SHIFT as i32 }>(lo[a]),
+            _mm256_slli_epi32::<{ CELL_SHIFT as i32 }>(_mm256_add_epi32(hi[a], one)),
+            up,
+        );
+        let ta = _mm256_mul_ps(_mm256_sub_ps(_mm256_cvtepi32_ps(face), r.o[a]), r.inv[a]);
+        let ta = _mm256_blendv_ps(
+            _mm256_set1_ps(f32::INFINITY),
+            ta,
+            _mm256_castsi256_ps(_mm256_or_si256(up, down)),
+        );
+        te = _mm256_min_ps(te, ta);
+    }
+    // The first sample at or past `te`, and at least the next one.
+    let q = _mm256_max_ps(_mm256_min_ps(_mm256_mul_ps(te, r.inv_step), r.k1f), zero);
+    let kq = _mm256_cvttps_epi32(q);
+    let up = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_cvtepi32_ps(kq), q));
+    // `up` is all ones (−1) where the ceiling is one more.
+    let kb = _mm256_sub_epi32(kq, up);
+    let kb = _mm256_min_epi32(_mm256_max_epi32(kb, _mm256_add_epi32(kv, one)), r.k1v);
+    let inside = |k: __m256i| {
+        let t = _mm256_mul_ps(_mm256_cvtepi32_ps(k), r.stepv);
+        let c = cells_at(t);
+        _mm256_and_si256(
+            _mm256_and_si256(within(lo[0], c[0], hi[0]), within(lo[1], c[1], hi[1])),
+            within(lo[2], c[2], hi[2]),
+        )
+    };
+    // Settled by one sample where a rounding put the estimate past a face.
+    let kb1 = _mm256_sub_epi32(kb, one);
+    let in1 = inside(kb1);
+    if bits(in1) == 0xFF {
+        return kb;
+    }
+    let in2 = inside(_mm256_sub_epi32(kb1, one));
+    let fallback = blend_i(_mm256_add_epi32(kv, one), kb1, in2);
+    blend_i(fallback, kb, in1)
+}
+
+/// The corners of [`Gather8::corners8`] one voxel at a time: for cells whose wider reads
+/// would pass the end of the data.
+///
+/// # Safety
+/// For every lane `base + sx + sy + sz < v.len()`.
+#[target_feature(enable = "avx2")]
+unsafe fn corners_exact<T: Gather8>(
+    v: &[T],
+    base: __m256i,
+    [sx, sy, sz]: [usize; 3],
+) -> [__m256; 8] {
+    let mut b = [0u32; LANES];
+    // SAFETY: `b` holds eight u32.
+    unsafe { _mm256_storeu_si256(b.as_mut_ptr().cast(), base) };
+    let offs = [0, sx, sy, sy + sx, sz, sz + sx, sz + sy, sz + sy + sx];
+    // SAFETY: every corner is inside `v` (caller).
+    offs.map(|off| {
+        vec8(std::array::from_fn(|j| unsafe {
+            v.get_unchecked(b[j] as usize + off).to_f32()
+        }))
+    })
+}
