@@ -1,4 +1,5 @@
-//! The low-resolution proxy predictor: per cell of [`PROXY_CELL`]³ voxels, a few value
+//! The low-resolution proxy predictor: per cell of [`PROXY_CELL`]³ voxels
+//! ([`COARSE_PROXY_CELL`]³ on large volumes, [`proxy_cell`]), a few value
 //! groups (the cell's voxels sorted by value, split in [`PROXY_GROUPS`] equal shares) with
 //! each group's mean extinction per basis. At frame time each cell gets an *effective*
 //! extinction from its groups, sample rays are marched through the cells to predict where
@@ -31,15 +32,40 @@ use crate::with_voxels;
 
 use super::FrameBricks;
 
-/// Edge of a proxy cell in voxels: fine enough to place a surface within a quarter of a
-/// 16³ brick, coarse enough that a 512-cell ray crosses a few hundred cells.
-pub const PROXY_CELL: usize = 4;
+/// Edge of a proxy cell in voxels, for volumes of at most [`FINE_PROXY_VOXELS`] voxels: fine
+/// enough to resolve the cortex's sulci, which let single rays deep between 4³ cells
+/// (measured on `ch2better_mri`, docs/culling.md: the opaque family renders 1.5 points over
+/// the oracle instead of 2.2, at fewer repairs; the CTs predict the same).
+pub const PROXY_CELL: usize = 2;
+
+/// Edge of a proxy cell in voxels for larger volumes ([`proxy_cell`]): 2³ cells cost about
+/// half a byte of slots per voxel plus their groups (four bytes per voxel and basis where
+/// some basis sees the cell), more than an i16 volume; 4³ cells an eighth of that.
+pub const COARSE_PROXY_CELL: usize = 4;
+
+/// The most voxels (64 Mi, e.g. 400³) whose proxy has [`PROXY_CELL`]-voxel cells: its slots
+/// then take at most 32 MiB.
+pub const FINE_PROXY_VOXELS: usize = 1 << 26;
+
+/// The cell edge of the proxy of a volume of `dims` voxels: [`PROXY_CELL`] up to
+/// [`FINE_PROXY_VOXELS`] voxels, [`COARSE_PROXY_CELL`] above, so that a proxy costs a small
+/// share of a large volume's memory. Depends on the dimensions only, so a streamed and a
+/// mapped proxy of one volume agree.
+#[must_use]
+pub fn proxy_cell(dims: [usize; 3]) -> usize {
+    let voxels = dims.iter().fold(1usize, |a, &n| a.saturating_mul(n));
+    if voxels <= FINE_PROXY_VOXELS {
+        PROXY_CELL
+    } else {
+        COARSE_PROXY_CELL
+    }
+}
 
 /// Value groups per cell: enough to tell air, soft tissue and bone apart in one cell.
 pub const PROXY_GROUPS: usize = 4;
 
 /// The length (in ray `t`, about a voxel) over which a ray is taken to stay in one value
-/// group of a cell: four cells. Longer than a cell because tissue is correlated beyond
+/// group of a cell: 16 voxels, four coarse cells. Longer than a cell because tissue is correlated beyond
 /// it: a ray that enters the air of a sulcus or between ribs stays in it for a while.
 /// Measured against 4, 8 and 32 on the sweep targets (docs/culling.md): 16 repairs least
 /// for what it renders.
@@ -78,6 +104,8 @@ const NO_SLOT: u32 = u32::MAX;
 pub struct Proxy {
     /// Voxels per axis.
     dims: [usize; 3],
+    /// Edge of a cell in voxels ([`proxy_cell`]).
+    edge: usize,
     /// Cells per axis.
     cells: [usize; 3],
     /// Per cell (x fastest), the index of its groups in `tau`, or [`NO_SLOT`].
@@ -97,12 +125,22 @@ impl Proxy {
     /// parallel over slabs of cells.
     #[must_use]
     pub fn new(volume: &Volume, sampled: &SampledTf) -> Self {
+        Proxy::with_cell(volume, sampled, proxy_cell(volume.dims()))
+    }
+
+    /// As [`Proxy::new`], with cells of `edge` voxels (≥ 1) instead of [`proxy_cell`]'s.
+    #[must_use]
+    pub fn with_cell(volume: &Volume, sampled: &SampledTf, edge: usize) -> Self {
         let dims = volume.dims();
-        let cells = dims.map(|n| n.div_ceil(PROXY_CELL));
+        let edge = edge.max(1);
+        let cells = dims.map(|n| n.div_ceil(edge));
         let slabs: Vec<Slab> = with_voxels!(volume.data(), v => {
-            (0..cells[2]).into_par_iter().map(|z| slab(v, dims, cells, z, sampled)).collect()
+            (0..cells[2])
+                .into_par_iter()
+                .map(|z| slab(v, (dims, edge, cells), z, sampled))
+                .collect()
         });
-        let mut proxy = Proxy::empty(dims, sampled.basis_count());
+        let mut proxy = Proxy::empty(dims, edge, sampled.basis_count());
         for s in slabs {
             proxy.append(s);
         }
@@ -110,10 +148,11 @@ impl Proxy {
     }
 
     /// A proxy of no cells yet, filled slab by slab with [`Proxy::append`].
-    fn empty(dims: [usize; 3], bases: usize) -> Self {
-        let cells = dims.map(|n| n.div_ceil(PROXY_CELL));
+    fn empty(dims: [usize; 3], edge: usize, bases: usize) -> Self {
+        let cells = dims.map(|n| n.div_ceil(edge));
         Proxy {
             dims,
+            edge,
             cells,
             slot: Vec::with_capacity(cells.iter().product()),
             tau: vec![Vec::new(); bases],
@@ -163,7 +202,7 @@ impl Proxy {
         let [cx, cy, _] = self.cells;
         let at = [c % cx, (c / cx) % cy, c / (cx * cy)];
         let n: usize = (0..3)
-            .map(|a| ((at[a] + 1) * PROXY_CELL).min(self.dims[a]) - at[a] * PROXY_CELL)
+            .map(|a| ((at[a] + 1) * self.edge).min(self.dims[a]) - at[a] * self.edge)
             .product();
         std::array::from_fn(|g| {
             let len = (g + 1) * n / PROXY_GROUPS - g * n / PROXY_GROUPS;
@@ -188,18 +227,21 @@ impl Proxy {
         slab_planes: usize,
         read: &dyn Fn(usize, usize) -> Result<crate::volume::VoxelData, E>,
     ) -> Result<Self, E> {
-        let mut proxy = Proxy::empty(dims, sampled.basis_count());
-        let cz = proxy.cells[2];
-        let per_read = (slab_planes / PROXY_CELL).max(1);
+        let mut proxy = Proxy::empty(dims, proxy_cell(dims), sampled.basis_count());
+        let (cz, edge) = (proxy.cells[2], proxy.edge);
+        let per_read = (slab_planes / edge).max(1);
         for first in (0..cz).step_by(per_read) {
             let layers = per_read.min(cz - first);
-            let z0 = first * PROXY_CELL;
-            let planes = (layers * PROXY_CELL).min(dims[2] - z0);
+            let z0 = first * edge;
+            let planes = (layers * edge).min(dims[2] - z0);
             let data = read(z0, planes)?;
             let sdims = [dims[0], dims[1], planes];
             let cells = proxy.cells;
             let slabs: Vec<Slab> = with_voxels!(&data, v => {
-                (0..layers).into_par_iter().map(|z| slab(v, sdims, cells, z, sampled)).collect()
+                (0..layers)
+                    .into_par_iter()
+                    .map(|z| slab(v, (sdims, edge, cells), z, sampled))
+                    .collect()
             });
             for s in slabs {
                 proxy.append(s);
@@ -212,6 +254,12 @@ impl Proxy {
     #[must_use]
     pub fn cells(&self) -> [usize; 3] {
         self.cells
+    }
+
+    /// Edge of a cell in voxels ([`proxy_cell`]).
+    #[must_use]
+    pub fn cell_edge(&self) -> usize {
+        self.edge
     }
 
     /// The effective extinction of every cell at `weights`, computed once per weights
@@ -271,7 +319,7 @@ impl Proxy {
     /// infinite when it never does.
     #[must_use]
     pub fn termination(&self, ext: &[f32], ray: &IndexRay, depth: f32) -> f32 {
-        let hi = self.cells.map(|c| (c * PROXY_CELL) as f32);
+        let hi = self.cells.map(|c| (c * self.edge) as f32);
         let (mut t0, mut t1) = (0f32, f32::INFINITY);
         for ((&o, &d), &hi) in ray.o.iter().zip(&ray.d).zip(&hi) {
             if d == 0.0 {
@@ -287,7 +335,7 @@ impl Proxy {
         if t0 >= t1 {
             return f32::INFINITY;
         }
-        let edge = PROXY_CELL as f32;
+        let edge = self.edge as f32;
         let p = |a: usize, t: f32| ray.o[a] + t * ray.d[a];
         let mut cell: [i64; 3] = std::array::from_fn(|a| {
             let x = (p(a, t0 + (t1 - t0) * 1e-6) / edge).floor() as i64;
@@ -452,13 +500,12 @@ struct Slab {
     stored: usize,
 }
 
-/// One slab of cells (cell row `z`): each cell's voxels sorted by bin and split into
-/// [`PROXY_GROUPS`] near-equal shares, each group's mean extinction per basis; a cell
-/// where every basis is transparent is not stored.
+/// One slab of cells of `edge` voxels (cell row `z`): each cell's voxels sorted by bin and
+/// split into [`PROXY_GROUPS`] near-equal shares, each group's mean extinction per basis; a
+/// cell where every basis is transparent is not stored.
 fn slab<T: Voxel>(
     v: &[T],
-    [nx, ny, nz]: [usize; 3],
-    [cx, cy, _]: [usize; 3],
+    ([nx, ny, nz], edge, [cx, cy, _]): ([usize; 3], usize, [usize; 3]),
     z: usize,
     sampled: &SampledTf,
 ) -> Slab {
@@ -467,17 +514,17 @@ fn slab<T: Voxel>(
     let mut tau = vec![Vec::new(); bases];
     let mut slot = Vec::with_capacity(cx * cy);
     let mut stored = 0usize;
-    let zs = z * PROXY_CELL..((z + 1) * PROXY_CELL).min(nz);
+    let zs = z * edge..((z + 1) * edge).min(nz);
     // Bins where some basis is not transparent: a cell with none (air, or tissue outside
     // the family) has every group at zero and needs no sort. Most cells of a CT are such.
     let opaque: Vec<bool> = (0..TF_BINS)
         .map(|b| tables.iter().any(|t| t[b] > 0.0))
         .collect();
-    let mut bins: Vec<u16> = Vec::with_capacity(PROXY_CELL.pow(3));
+    let mut bins: Vec<u16> = Vec::with_capacity(edge.pow(3));
     for ycell in 0..cy {
-        let ys = ycell * PROXY_CELL..((ycell + 1) * PROXY_CELL).min(ny);
+        let ys = ycell * edge..((ycell + 1) * edge).min(ny);
         for xcell in 0..cx {
-            let xs = xcell * PROXY_CELL..((xcell + 1) * PROXY_CELL).min(nx);
+            let xs = xcell * edge..((xcell + 1) * edge).min(nx);
             bins.clear();
             let mut any = false;
             for zz in zs.clone() {

@@ -317,13 +317,13 @@ fn proxy_termination_is_where_a_uniform_slab_reaches_the_depth() {
     assert!(proxy.termination(&vec![0.0; n], &ray, 1.0).is_infinite());
 }
 
-/// A volume of two proxy cells along x: the first half air (x < 2), half value 200; the
-/// second all 200. The family is opaque (α 0.5 per unit) above 100 only.
-fn two_cells() -> (crate::volume::Volume, crate::render::SampledTf) {
+/// A volume of two proxy cells of `c` voxels along x: the first half air (x < c/2), half
+/// value 200; the second all 200. The family is opaque (α 0.5 per unit) above 100 only.
+fn two_cells(c: usize) -> (crate::volume::Volume, crate::render::SampledTf) {
     use crate::volume::{VoxelData, Voxels};
-    let (nx, ny, nz) = (8, 4, 4);
+    let (nx, ny, nz) = (2 * c, c, c);
     let v: Vec<u8> = (0..nx * ny * nz)
-        .map(|i| if i % nx < 2 { 0 } else { 200 })
+        .map(|i| if i % nx < c / 2 { 0 } else { 200 })
         .collect();
     let vol = crate::volume::Volume::new(
         [nx, ny, nz],
@@ -349,27 +349,68 @@ fn two_cells() -> (crate::volume::Volume, crate::render::SampledTf) {
 
 #[test]
 fn proxy_cell_half_air_has_the_effective_extinction_of_its_groups() {
-    let (vol, s) = two_cells();
-    let proxy = Proxy::new(&vol, &s);
-    assert_eq!(proxy.cells(), [2, 1, 1]);
-    let e = -(0.5f32).ln();
-    let ext = proxy.extinction(&[1.0]);
-    // The uniform cell: its extinction. The half-air one: half the rays cross air over a
-    // correlation length, so −ln(½ + ½e^(−eℓ))/ℓ, far below the mean e/2 (which would
-    // hide what lies behind a surface too early).
-    assert!((ext[1] - e).abs() < 1e-5, "{ext:?}");
-    let l = proxy::CORRELATION_LENGTH;
-    let want = -(0.5 + 0.5 * (-e * l).exp()).ln() / l;
-    assert!((ext[0] - want).abs() < 1e-5, "{ext:?}, want {want}");
-    assert!(ext[0] < e / 2.0);
-    // Weights scale each group's extinction before the groups combine.
-    let ext2 = proxy.extinction(&[2.0]);
-    assert!((ext2[1] - 2.0 * e).abs() < 1e-5);
-    assert!(ext2[0] > ext[0] && ext2[0] < 2.0 * ext[0]);
-    // The cached extinction is the same, and follows the weights.
-    assert_eq!(*proxy.extinction_at(&[1.0]), ext);
-    assert_eq!(*proxy.extinction_at(&[2.0]), ext2);
-    assert_eq!(*proxy.extinction_at(&[1.0]), ext);
+    // Both cell sizes a proxy uses (fine on small volumes, coarse on large ones).
+    for c in [proxy::PROXY_CELL, proxy::COARSE_PROXY_CELL] {
+        let (vol, s) = two_cells(c);
+        let proxy = Proxy::with_cell(&vol, &s, c);
+        assert_eq!((proxy.cells(), proxy.cell_edge()), ([2, 1, 1], c));
+        let e = -(0.5f32).ln();
+        let ext = proxy.extinction(&[1.0]);
+        // The uniform cell: its extinction. The half-air one: half the rays cross air over a
+        // correlation length, so −ln(½ + ½e^(−eℓ))/ℓ, far below the mean e/2 (which would
+        // hide what lies behind a surface too early).
+        assert!((ext[1] - e).abs() < 1e-5, "{c}: {ext:?}");
+        let l = proxy::CORRELATION_LENGTH;
+        let want = -(0.5 + 0.5 * (-e * l).exp()).ln() / l;
+        assert!((ext[0] - want).abs() < 1e-5, "{c}: {ext:?}, want {want}");
+        assert!(ext[0] < e / 2.0);
+        // Weights scale each group's extinction before the groups combine.
+        let ext2 = proxy.extinction(&[2.0]);
+        assert!((ext2[1] - 2.0 * e).abs() < 1e-5);
+        assert!(ext2[0] > ext[0] && ext2[0] < 2.0 * ext[0]);
+        // The cached extinction is the same, and follows the weights.
+        assert_eq!(*proxy.extinction_at(&[1.0]), ext);
+        assert_eq!(*proxy.extinction_at(&[2.0]), ext2);
+        assert_eq!(*proxy.extinction_at(&[1.0]), ext);
+        // A ray along x through both cells: the half-air cell adds its effective depth over
+        // its c voxels, the uniform one reaches the rest at e per unit.
+        let ray = crate::render::IndexRay {
+            o: [-1.0, 0.5, 0.5],
+            d: [1.0, 0.0, 0.0],
+            dir: [1.0, 0.0, 0.0],
+        };
+        let depth = want * c as f32 + 0.5 * e;
+        let t = proxy.termination(&ext, &ray, depth);
+        assert!((t - (1.0 + c as f32 + 0.5)).abs() < 1e-3, "{c}: {t}");
+    }
+}
+
+#[test]
+fn proxy_cells_are_fine_on_small_volumes_and_coarse_on_large_ones() {
+    use proxy::{proxy_cell, COARSE_PROXY_CELL, FINE_PROXY_VOXELS, PROXY_CELL};
+    const { assert!(PROXY_CELL < COARSE_PROXY_CELL) };
+    // The catalogue's MRI and CTs get fine cells; the 512×512×1728 CT coarse ones.
+    for small in [
+        [301, 370, 316],
+        [256, 256, 133],
+        [64, 64, 93],
+        [400, 400, 400],
+    ] {
+        assert_eq!(proxy_cell(small), PROXY_CELL, "{small:?}");
+    }
+    assert_eq!(proxy_cell([FINE_PROXY_VOXELS, 1, 1]), PROXY_CELL);
+    assert_eq!(proxy_cell([FINE_PROXY_VOXELS + 1, 1, 1]), COARSE_PROXY_CELL);
+    assert_eq!(proxy_cell([512, 512, 1728]), COARSE_PROXY_CELL);
+    // No overflow on absurd dimensions.
+    assert_eq!(proxy_cell([usize::MAX, 3, 3]), COARSE_PROXY_CELL);
+    // A job's proxy has the cells of its volume's size.
+    let j = job(32, &[1.0, 1.0]);
+    let p = j.proxy();
+    assert_eq!(p.cell_edge(), proxy_cell(j.volume.dims()));
+    assert_eq!(
+        p.cells(),
+        j.volume.dims().map(|n| n.div_ceil(p.cell_edge()))
+    );
 }
 
 #[test]
