@@ -32,7 +32,8 @@ pub struct PofBuildRow {
     pub sets: bool,
     /// The view grid, `NxM`.
     pub views: String,
-    /// `built`, or where the table was read from.
+    /// `built` (`built, streamed from the …` when read through the brick store), or where
+    /// the table was read from.
     pub source: String,
     /// Build time (absent when read).
     pub seconds: Option<f64>,
@@ -46,6 +47,10 @@ pub struct PofBuildRow {
     pub stored_bricks: usize,
     /// Size of the file the table saves to.
     pub file_bytes: usize,
+    /// Bytes the build read from the brick store (built from the store under a memory
+    /// budget the volume does not fit; absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bytes_read: Option<u64>,
 }
 
 impl PofBuildRow {
@@ -69,6 +74,7 @@ impl PofBuildRow {
             bytes_per_brick_per_basis: t.bytes_per_brick_per_basis(),
             stored_bricks: t.stored_bricks(),
             file_bytes: t.file_len(),
+            bytes_read: None,
         }
     }
 
@@ -191,25 +197,63 @@ fn build(
     };
     progress.begin(&format!("fig 1: POFs, {encoding}"), 0);
     let total = AtomicU64::new(0);
+    let on_progress = |done, n| {
+        total.store(n, Ordering::Relaxed);
+        progress.set(done, n);
+    };
     let t = Instant::now();
-    let table = PofTable::build(
-        &job.volume,
-        &job.grid,
-        &job.tf,
-        &job.sampled,
-        &settings,
-        &|done, n| {
-            total.store(n, Ordering::Relaxed);
-            progress.set(done, n);
-        },
-    )?;
+    let (table, source, bytes_read) = match job.store.as_ref().filter(|s| s.source().is_file()) {
+        // A volume read through its brick store (larger than the memory budget) is never
+        // sampled through its mapping: the build reads it slab by slab from the store, the
+        // same table bit for bit (`store/test_pof.rs`), its slabs within the budget less a
+        // Zarr level's decoded-chunk share.
+        Some(store) => {
+            let chunks = store
+                .source()
+                .zarr()
+                .map_or(0, crate::store::ZarrSource::chunk_budget);
+            let (table, r) = crate::pof::build_streamed_in_memory(
+                &job.volume,
+                store.source(),
+                &job.grid,
+                &job.tf,
+                &job.sampled,
+                &settings,
+                store.budget().saturating_sub(chunks).max(1),
+                &on_progress,
+                None,
+            )?;
+            let how = format!(
+                "built, streamed from the {} ({} bytes read in {} slabs)",
+                store.source().kind(),
+                r.bytes_read,
+                r.slabs_read
+            );
+            (table, how, Some(r.bytes_read))
+        }
+        None => (
+            PofTable::build(
+                &job.volume,
+                &job.grid,
+                &job.tf,
+                &job.sampled,
+                &settings,
+                &on_progress,
+            )?,
+            "built".to_string(),
+            None,
+        ),
+    };
     let seconds = t.elapsed().as_secs_f64();
     progress.end();
-    let row = PofBuildRow::of(
-        &table,
-        encoding,
-        "built",
-        Some((seconds, total.load(Ordering::Relaxed))),
-    );
+    let row = PofBuildRow {
+        bytes_read,
+        ..PofBuildRow::of(
+            &table,
+            encoding,
+            &source,
+            Some((seconds, total.load(Ordering::Relaxed))),
+        )
+    };
     Ok((table, row))
 }

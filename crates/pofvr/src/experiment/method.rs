@@ -136,6 +136,28 @@ pub fn methods<'a>(pofs: &'a PofBuild, range: &'a RangeBound, no_sets: &'a str) 
     ]
 }
 
+/// Why the oracle is not measured under a memory budget the volume does not fit.
+pub const NO_EXACT_UNDER_BUDGET: &str =
+    "not measured: the volume is read through its brick store (larger than --memory-budget) \
+     and the exact oracle composites every brick from the whole lattice, which would map the \
+     whole file";
+
+/// Marks as missing, with [`NO_EXACT_UNDER_BUDGET`], the methods that sample the whole
+/// lattice (the exact oracle) when `job` reads its volume through a brick store, so that a
+/// budgeted run never maps the file whole and the report says why they are absent. Returns
+/// the names marked.
+pub fn honour_budget(methods: &mut [Method<'_>], job: &RenderJob) -> Vec<&'static str> {
+    if !job.store.as_ref().is_some_and(|s| s.source().is_file()) {
+        return Vec::new();
+    }
+    let mut marked = Vec::new();
+    for m in methods.iter_mut().filter(|m| m.mode == CullMode::Exact) {
+        m.missing = Some(NO_EXACT_UNDER_BUDGET);
+        marked.push(m.name);
+    }
+    marked
+}
+
 impl std::fmt::Debug for Method<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Method")

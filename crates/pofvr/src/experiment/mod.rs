@@ -38,7 +38,9 @@ pub use fig4_view::{culling_vs_view, MethodMean, ViewRow, ViewSweep};
 pub use fig5_ranks::{rank_breakdown, RankBreakdown, RankFrame};
 pub use fig6_speedup::{rank_counts, speedup, BestSpeedup, Speedup, SpeedupRow};
 pub use fig8_tf_family::{tf_family, weight_grid, PaperImage, TfFamily, TfFamilyRow};
-pub use method::{methods, range_bound, Method, PAPER_WEIGHTS};
+pub use method::{
+    honour_budget, methods, range_bound, Method, NO_EXACT_UNDER_BUDGET, PAPER_WEIGHTS,
+};
 pub use progress::{NoProgress, Progress};
 pub use timing::{culled_fraction, load_balance, median_frame, one_core_per_rank, timed_point};
 
