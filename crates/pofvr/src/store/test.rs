@@ -120,26 +120,34 @@ fn the_cache_keeps_its_budget_evicting_the_least_recently_used() {
         .unwrap();
     // Room for two interior bricks.
     let cache = BrickCache::new(BrickSource::Memory, 2 * one);
-    let (first, second) = (ReadCounts::default(), ReadCounts::default());
-    let get = |i: u32, c: &ReadCounts| cache.get(&vol, &grid, BrickId(i), c).unwrap();
-    let a = get(0, &first);
+    let (a, b, c) = (
+        ReadCounts::default(),
+        ReadCounts::default(),
+        ReadCounts::default(),
+    );
+    let get = |i: u32, r: &ReadCounts| cache.get(&vol, &grid, BrickId(i), r).unwrap();
+    let first = get(0, &a);
     assert_eq!(
-        values(a.data()),
+        values(first.data()),
         values(BrickCopy::new(&vol, &grid, BrickId(0)).data())
     );
-    get(1, &first);
-    get(0, &second); // hit: 1 is now the oldest
-    get(2, &second); // evicts 1, last used by the first frame
-    get(0, &second); // still held
-    get(1, &second); // read again, not cached: 0 and 2 are the second frame's
-    get(2, &second); // still held
-    assert_eq!((first.cache_hits(), first.bricks_read()), (0, 2));
-    assert_eq!((second.cache_hits(), second.bricks_read()), (3, 2));
+    get(1, &a);
+    get(0, &b); // hit
+    get(2, &b); // read, not cached: 0 is this frame's, 1 the frame before's
+    get(2, &c); // read again; evicts 1, last used two frames ago
+    get(2, &c); // hit
+    get(1, &c); // read, not cached: 0 is the frame before's, 2 this one's
+    assert_eq!((a.cache_hits(), a.bricks_read()), (0, 2));
+    assert_eq!((b.cache_hits(), b.bricks_read()), (1, 1));
+    assert_eq!((c.cache_hits(), c.bricks_read()), (1, 2));
     let s = cache.summary();
     assert!(s.cache_peak_bytes <= 2 * one, "{s:?}");
-    assert_eq!((s.evictions, s.not_cached), (1, 1), "{s:?}");
-    assert_eq!(s.bricks_read, 4);
-    assert_eq!(first.bytes_read() + second.bytes_read(), s.bytes_read);
+    assert_eq!((s.evictions, s.not_cached), (1, 2), "{s:?}");
+    assert_eq!(s.bricks_read, 5);
+    assert_eq!(
+        a.bytes_read() + b.bytes_read() + c.bytes_read(),
+        s.bytes_read
+    );
 }
 
 #[test]
