@@ -146,3 +146,65 @@ fn an_unwritable_output_is_an_error_naming_it() {
     assert!(e.to_string().contains(&out.display().to_string()), "{e}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn the_experiments_pofs_under_a_budget_are_built_from_the_store_and_the_oracle_is_left_out() {
+    use crate::experiment::{self as exp, NoProgress, PofSource};
+    use crate::frame::RenderJob;
+    use crate::render::RenderSettings;
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let (dir, vol, grid, _) = setup("pof-experiment");
+    let (other, vol2, grid2, _) = setup("pof-experiment-2");
+    let bytes = volume_bytes(&vol);
+    let store = cache_for(&vol2, Some(bytes / 3)).unwrap();
+    assert!(store.is_some());
+    let whole = RenderJob::with_grid(vol, tf.clone(), grid, RenderSettings::default()).unwrap();
+    let mut budgeted = RenderJob::with_grid(vol2, tf, grid2, RenderSettings::default()).unwrap();
+    budgeted.store = store;
+    let a = exp::pof_construction(&whole, [4, 6], PofSource::Build, true, &NoProgress).unwrap();
+    let b = exp::pof_construction(&budgeted, [4, 6], PofSource::Build, true, &NoProgress).unwrap();
+    assert_eq!(a.rows.len(), b.rows.len());
+    for (x, y) in a.rows.iter().zip(&b.rows) {
+        assert_eq!(x.label(), y.label());
+        assert_eq!(x.source, "built");
+        assert!(x.bytes_read.is_none());
+        assert!(
+            y.source.starts_with("built, streamed from the raw file"),
+            "{}",
+            y.source
+        );
+        // Each build reads the volume once, ghost planes twice at most.
+        let read = y.bytes_read.unwrap();
+        assert!(read > 0 && read < 2 * bytes, "{read}");
+        assert_eq!(
+            (x.stored_bricks, x.file_bytes, x.computed_bricks),
+            (y.stored_bricks, y.file_bytes, y.computed_bricks)
+        );
+    }
+    // The same tables, so the same culling: compare the files.
+    for (t, u, name) in [(&a.table, &b.table, "table"), (&a.cubic, &b.cubic, "cubic")] {
+        let (p, q) = (
+            dir.join(format!("a-{name}.pof")),
+            dir.join(format!("b-{name}.pof")),
+        );
+        t.save(&p).unwrap();
+        u.save(&q).unwrap();
+        assert!(
+            std::fs::read(&p).unwrap() == std::fs::read(&q).unwrap(),
+            "{name}"
+        );
+    }
+    let range = exp::range_bound(&budgeted);
+    let mut all = exp::methods(&b, &range, "no sets");
+    assert!(exp::honour_budget(&mut all.clone(), &whole).is_empty());
+    assert_eq!(exp::honour_budget(&mut all, &budgeted), ["exact"]);
+    for m in &all {
+        assert_eq!(m.available(), m.name != "exact", "{}", m.name);
+    }
+    assert_eq!(
+        all.iter().find(|m| m.name == "exact").unwrap().missing,
+        Some(exp::NO_EXACT_UNDER_BUDGET)
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+    std::fs::remove_dir_all(other).unwrap();
+}
