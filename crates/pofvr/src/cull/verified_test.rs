@@ -315,6 +315,13 @@ fn proxy_termination_is_where_a_uniform_slab_reaches_the_depth() {
     let t = proxy.termination(&ext, &ray, 1.0);
     assert!((t - 4.0).abs() < 1e-4, "{t}");
     assert!(proxy.termination(&vec![0.0; n], &ray, 1.0).is_infinite());
+    // The prediction: where the threshold's depth is reached, then the margin's length.
+    let th = 0.95f32;
+    let d = -(1.0 - th).ln() * proxy::PROXY_DEPTH_FACTOR;
+    let end = proxy.predicted_end(&ext, &ray, th);
+    let want = 2.0 + d / 0.5 + proxy::PROXY_MARGIN_LENGTH;
+    assert!((end - want).abs() < 1e-3, "{end}, want {want}");
+    assert!(proxy.predicted_end(&vec![0.0; n], &ray, th).is_infinite());
 }
 
 /// A volume of two proxy cells of `c` voxels along x: the first half air (x < c/2), half
