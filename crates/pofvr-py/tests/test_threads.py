@@ -46,14 +46,21 @@ def render_pair(scene, together):
 
 def test_two_threads_render_at_once(scene):
     serial = render_pair(scene, together=False)
-    together = render_pair(scene, together=True)
-    # The same frames either way.
-    for a, b in zip(serial[2], together[2]):
-        assert a.rgba_float.tobytes() == b.rgba_float.tobytes()
     # Evidence that does not depend on free cores: the two renders were in flight at the
     # same time, so their own durations add up to more than the wall time of both. With
-    # the GIL held during a render they could not overlap (sum <= wall).
-    assert together[1] > 1.3 * together[0], together[:2]
+    # the GIL held during a render they could not overlap (sum <= wall), whatever the
+    # round. A frame takes a few tens of milliseconds, so one thread may be scheduled late
+    # and find the other nearly done: the best of a few rounds is asserted.
+    rounds = []
+    for _ in range(5):
+        together = render_pair(scene, together=True)
+        # The same frames either way.
+        for a, b in zip(serial[2], together[2]):
+            assert a.rgba_float.tobytes() == b.rgba_float.tobytes()
+        rounds.append(together[:2])
+        if together[1] > 1.3 * together[0]:
+            break
+    assert any(s > 1.3 * w for w, s in rounds), rounds
 
 
 def test_two_threads_render_faster_than_one_after_the_other(scene):

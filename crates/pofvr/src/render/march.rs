@@ -15,7 +15,8 @@
 //! through the same float operations as the reference, so the image equals it bit for bit.
 //!
 //! Where the CPU has AVX2, the frame goes in packets of eight rays (4 × 2 pixels), one
-//! ray per lane, through `arch/x86_64/packet.rs`: composited lane-wise, and leaping for
+//! ray per lane, through `arch/x86_64/packet.rs` (sixteen, 4 × 4, through
+//! `arch/x86_64/packet16.rs` where it has AVX-512): composited lane-wise, and leaping for
 //! the packet as a whole by the rule above evaluated lane-wise. Elsewhere (SSE2, or the
 //! scalar loop on request) each ray walks alone: marching a sample of zero opacity changes
 //! nothing either, so the walk marches through occupied cells, and the empty cells next to
@@ -124,9 +125,10 @@ impl RayCaster<'_> {
         (image, stats)
     }
 
-    /// The frame in packets of eight rays, 4 × 2 pixels each, through the AVX2 packet loop
-    /// ([`arch::march_packet`]), in parallel over bands of rows: `None`, having done
-    /// nothing, where that loop does not run.
+    /// The frame in packets through the packet loops, in parallel over bands of rows:
+    /// sixteen rays, 4 × 4 pixels each, on AVX-512 ([`arch::march_packet16`]) where it
+    /// runs, else eight, 4 × 2 pixels each, on AVX2 ([`arch::march_packet`]); `None`,
+    /// having done nothing, where neither runs.
     #[cfg(target_arch = "x86_64")]
     fn render_packets<T: Gather>(
         &self,
@@ -136,13 +138,42 @@ impl RayCaster<'_> {
         w: usize,
         pixels: &mut [[f32; 4]],
     ) -> Option<MarchStats> {
-        use arch::x86_64::packet::{Packet, PacketTables, LANES};
-        const PW: usize = 4;
-        const PH: usize = LANES / PW;
+        use arch::x86_64::packet::LANES;
+        use arch::x86_64::packet16::LANES as LANES16;
         let p = self.params();
         if !arch::packets(&p, tri) {
             return None;
         }
+        if p.avx512 {
+            self.packet_frame::<LANES16, 4>(rays, occ, w, pixels, &|tab, pk| {
+                arch::march_packet16(&p, tri, tab, pk)
+            })
+        } else {
+            self.packet_frame::<LANES, 4>(rays, occ, w, pixels, &|tab, pk| {
+                arch::march_packet(&p, tri, tab, pk)
+            })
+        }
+    }
+
+    /// [`Self::render_packets`] in packets of `N` rays, `PW` pixels wide, each marched by
+    /// `march` (`None` where its loop does not run).
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::type_complexity)]
+    fn packet_frame<const N: usize, const PW: usize>(
+        &self,
+        rays: &FrameRays,
+        occ: &Occupancy,
+        w: usize,
+        pixels: &mut [[f32; 4]],
+        march: &(dyn Fn(
+            &arch::x86_64::packet::PacketTables<'_>,
+            &mut arch::x86_64::packet::Packet<N>,
+        ) -> Option<arch::x86_64::packet::PacketStats>
+              + Sync),
+    ) -> Option<MarchStats> {
+        use arch::x86_64::packet::{Packet, PacketTables};
+        let ph = N / PW;
+        debug_assert_eq!(TILE_ROWS % ph, 0);
         let step = self.settings().step;
         let vbox = self.volume_box();
         let tab = PacketTables {
@@ -160,15 +191,15 @@ impl RayCaster<'_> {
             .map(|(band, rows)| {
                 let mut st = MarchStats::default();
                 let h = rows.len() / w;
-                let mut pk = Packet {
-                    rays: [none; LANES],
-                    k0: [0; LANES],
-                    k1: [0; LANES],
-                    acc: [[0.0; 4]; LANES],
+                let mut pk = Packet::<N> {
+                    rays: [none; N],
+                    k0: [0; N],
+                    k1: [0; N],
+                    acc: [[0.0; 4]; N],
                 };
                 for x0 in (0..w).step_by(PW) {
-                    for r0 in (0..h).step_by(PH) {
-                        for j in 0..LANES {
+                    for r0 in (0..h).step_by(ph) {
+                        for j in 0..N {
                             let (x, r) = (x0 + j % PW, r0 + j / PW);
                             pk.k0[j] = 0;
                             pk.k1[j] = 0;
@@ -183,10 +214,10 @@ impl RayCaster<'_> {
                                 pk.acc[j] = rows[r * w + x];
                             }
                         }
-                        let ps = arch::march_packet(&p, tri, &tab, &mut pk)?;
+                        let ps = march(&tab, &mut pk)?;
                         st.rays.samples += ps.samples;
                         st.skipped_samples += ps.skipped;
-                        for j in 0..LANES {
+                        for j in 0..N {
                             let (x, r) = (x0 + j % PW, r0 + j / PW);
                             if pk.k0[j] < pk.k1[j] {
                                 rows[r * w + x] = pk.acc[j];

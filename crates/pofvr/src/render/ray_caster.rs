@@ -123,18 +123,37 @@ impl<'a> RayCaster<'a> {
                 ert: settings.ert,
                 shade: settings.shade.then(|| volume.spacing()),
                 avx2: arch::avx2_available(),
+                avx512: arch::avx512_available(),
                 scalar: false,
             },
             rays: OnceLock::new(),
         }
     }
 
-    /// The same caster with the AVX2 loop on or off (on only where the CPU has it): every
+    /// The same caster with the AVX2 loops on or off (on only where the CPU has it), and
+    /// with them the march engine's AVX-512 packets (on where the CPU has them too): every
     /// loop gives the same image, bit for bit; this is for comparing them.
     #[must_use]
     pub fn with_avx2(mut self, on: bool) -> Self {
         self.params.avx2 = on && arch::avx2_available();
+        self.params.avx512 = self.params.avx2 && arch::avx512_available();
         self
+    }
+
+    /// The same caster with the march engine's AVX-512 packets of sixteen rays on (only
+    /// where the CPU has them and the AVX2 loops are on) or off (packets of eight on AVX2):
+    /// the same image, bit for bit; this is for comparing them.
+    #[must_use]
+    pub fn with_avx512(mut self, on: bool) -> Self {
+        self.params.avx512 = on && self.params.avx2 && arch::avx512_available();
+        self
+    }
+
+    /// The loop the march engine's packets take: "avx512" (sixteen rays), "avx2" (eight)
+    /// or "none" (one ray at a time).
+    #[must_use]
+    pub fn packet_simd(&self) -> &'static str {
+        arch::packet_name(&self.params)
     }
 
     /// The same caster on the scalar reference loop (`on`) or on the fastest loop this CPU

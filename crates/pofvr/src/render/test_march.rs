@@ -24,19 +24,33 @@ fn compare(
     let (want, ref_st) = caster.render(cam);
     let occ = Occupancy::new(&CellRanges::new(vol), &cls);
     let mut first = None;
-    // The AVX2 loop that tests the cells itself (where the CPU has it), and the walk
-    // around the one-sample loop.
-    for avx2 in [true, false] {
-        let caster = RayCaster::new(vol, &cls, settings).with_avx2(avx2);
+    // The packets of sixteen on AVX-512 and of eight on AVX2 (where the CPU has them),
+    // and the walk around the one-sample loop.
+    for (avx2, avx512) in [(true, true), (true, false), (false, false)] {
+        let caster = RayCaster::new(vol, &cls, settings)
+            .with_avx2(avx2)
+            .with_avx512(avx512);
+        let want_packets = match (avx2, avx512) {
+            (true, true) if arch::avx512_available() => "avx512",
+            (true, _) if arch::avx2_available() => "avx2",
+            _ => "none",
+        };
+        if caster.packet_simd() != want_packets {
+            println!(
+                "skipped: the {want_packets} packets (this CPU runs {})",
+                caster.packet_simd()
+            );
+        }
         let (got, st) = caster.render_march(cam, &occ);
         for (i, (g, w)) in got.pixels().iter().zip(want.pixels()).enumerate() {
             assert_eq!(
                 g.map(f32::to_bits),
                 w.map(f32::to_bits),
-                "pixel {i} ({}, {}): march ({}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
+                "pixel {i} ({}, {}): march ({}, packets {}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
                 i as u32 % cam.width,
                 i as u32 / cam.width,
                 caster.simd(),
+                caster.packet_simd(),
                 cam.projection
             );
         }
@@ -203,7 +217,7 @@ fn march_equals_reference_on_the_phantoms() {
     }
 }
 
-/// Images whose sides are not multiples of the 4 × 2 packets, nor of the 8-row bands: the
+/// Images whose sides are not multiples of the 4 × 2 or 4 × 4 packets, nor of the 8-row bands: the
 /// packets at the right and bottom edges hold lanes without a pixel, which must neither
 /// be written nor hold back the others.
 #[test]

@@ -28,6 +28,9 @@ pub(crate) struct MarchParams<'c> {
     pub(crate) shade: Option<[f32; 3]>,
     /// Whether the AVX2 loop may run (set only where the CPU has it).
     pub(crate) avx2: bool,
+    /// Whether the march engine's packets go sixteen rays at a time on AVX-512 (set only
+    /// where the CPU has it, and with `avx2`); eight on AVX2 otherwise.
+    pub(crate) avx512: bool,
     /// Whether to run the scalar reference loop whatever the CPU has (for comparisons).
     pub(crate) scalar: bool,
 }
@@ -47,6 +50,14 @@ impl<T: Voxel> Gather for T {}
 pub(crate) fn avx2_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     return x86_64::avx2::available();
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+/// Whether this CPU runs the AVX-512 packet loop (`POFVR_SIMD=avx2` turns it off).
+pub(crate) fn avx512_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return x86_64::packet16::available();
     #[cfg(not(target_arch = "x86_64"))]
     false
 }
@@ -98,6 +109,32 @@ pub(crate) fn march_packet<T: Gather>(
         return None;
     }
     x86_64::march_packet(p, tri, tab, pk)
+}
+
+/// [`march_packet`] for packets of sixteen rays, on AVX-512: only where [`packets`] holds
+/// and `p.avx512` is set (it returns `None`, having done nothing, elsewhere).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn march_packet16<T: Gather>(
+    p: &MarchParams<'_>,
+    tri: &TrilinearSampler<'_, T>,
+    tab: &x86_64::packet::PacketTables<'_>,
+    pk: &mut x86_64::packet::Packet<{ x86_64::packet16::LANES }>,
+) -> Option<x86_64::packet::PacketStats> {
+    if p.scalar {
+        return None;
+    }
+    x86_64::march_packet16(p, tri, tab, pk)
+}
+
+/// The loop the march engine's packets take with `p`: "avx512" (sixteen rays), "avx2"
+/// (eight), or "none" (rays walk one at a time).
+pub(crate) fn packet_name(p: &MarchParams<'_>) -> &'static str {
+    match (p.scalar, p.avx2, p.avx512) {
+        (false, true, true) => "avx512",
+        (false, true, false) => "avx2",
+        _ => "none",
+    }
 }
 
 /// The loop [`march`] takes with `p`: "avx2", "sse2" or "scalar".

@@ -3,6 +3,7 @@
 
 pub(crate) mod avx2;
 pub(crate) mod packet;
+pub(crate) mod packet16;
 pub(crate) mod sse2;
 
 use super::{Gather, MarchParams};
@@ -58,6 +59,30 @@ pub(crate) fn march_packet<T: Gather>(
             packet::march8::<T, true>(p, tri, tab, pk)
         } else {
             packet::march8::<T, false>(p, tri, tab, pk)
+        }
+    })
+}
+
+/// [`super::march_packet16`] where the AVX-512 packet loop runs: `None` (having done
+/// nothing) elsewhere.
+#[inline(always)]
+pub(crate) fn march_packet16<T: Gather>(
+    p: &MarchParams<'_>,
+    tri: &TrilinearSampler<'_, T>,
+    tab: &PacketTables<'_>,
+    pk: &mut Packet<{ packet16::LANES }>,
+) -> Option<PacketStats> {
+    if !(p.avx2 && p.avx512 && avx2::fits(tri)) {
+        return None;
+    }
+    // SAFETY: `avx512` is only set where the CPU has AVX-512 F/BW/DQ/VL, and `avx2` where
+    // it has AVX2; `fits` was checked; the tables are the caller's, built for this volume
+    // and classification.
+    Some(unsafe {
+        if p.shade.is_some() {
+            packet16::march16::<T, true>(p, tri, tab, pk)
+        } else {
+            packet16::march16::<T, false>(p, tri, tab, pk)
         }
     })
 }

@@ -43,13 +43,14 @@ use crate::render::skip::LEAP_MIN;
 /// Rays per packet.
 pub(crate) const LANES: usize = 8;
 
-/// One packet: eight rays (a lane whose range is empty takes no part), the lattice indices
-/// `k0..k1` each claims, and their premultiplied RGBA so far.
-pub(crate) struct Packet {
-    pub(crate) rays: [IndexRay; LANES],
-    pub(crate) k0: [i32; LANES],
-    pub(crate) k1: [i32; LANES],
-    pub(crate) acc: [[f32; 4]; LANES],
+/// One packet: `N` rays (eight here, sixteen for [`super::packet16`]; a lane whose range
+/// is empty takes no part), the lattice indices `k0..k1` each claims, and their
+/// premultiplied RGBA so far.
+pub(crate) struct Packet<const N: usize = LANES> {
+    pub(crate) rays: [IndexRay; N],
+    pub(crate) k0: [i32; N],
+    pub(crate) k1: [i32; N],
+    pub(crate) acc: [[f32; 4]; N],
 }
 
 /// What the packet loop reads besides the volume and the classification: the occupancy's
@@ -336,7 +337,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
 /// `rgba` holds an entry (four floats) for every lane's bin.
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn rgba8(rgba: *const f32, bin: __m256i) -> [__m256; 4] {
+pub(crate) unsafe fn rgba8(rgba: *const f32, bin: __m256i) -> [__m256; 4] {
     use std::arch::x86_64::{
         _mm256_castpd_ps, _mm256_castps128_ps256, _mm256_castps_pd, _mm256_insertf128_ps,
         _mm256_unpackhi_pd, _mm256_unpackhi_ps, _mm256_unpacklo_pd, _mm256_unpacklo_ps,
@@ -467,7 +468,7 @@ fn leap_end(
 /// # Safety
 /// For every lane `base + sx + sy + sz < v.len()`.
 #[target_feature(enable = "avx2")]
-unsafe fn corners_exact<T: Gather8>(
+pub(crate) unsafe fn corners_exact<T: Gather8>(
     v: &[T],
     base: __m256i,
     [sx, sy, sz]: [usize; 3],

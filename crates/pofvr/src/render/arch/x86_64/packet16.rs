@@ -1,0 +1,408 @@
+//! The march engine's AVX-512 loop over packets of sixteen rays (4 × 4 pixels): the loop of
+//! [`super::packet`], lane for lane, on vectors twice as wide.
+//!
+//! Each lane performs the float operations of the scalar definition
+//! ([`super::super::generic::march`]) on its own ray's sample `k`, in the same order and
+//! without fused multiply–adds, so every pixel is bit for bit the reference's, as in the
+//! eight-lane loop; lanes take part under the same rules (masks instead of blends), and the
+//! packet leaps by the same lane-wise rule ([`crate::render::skip::Skip::leap_end`]). What
+//! the wider vectors buy is the arithmetic (positions, cells, lerps, classification,
+//! composite, leap estimates) at half the instructions per lane; the loads (corners,
+//! occupancy entries, table entries) stay one per lane, done by the eight-lane helpers on
+//! each half.
+
+use std::arch::x86_64::{
+    __m256, __m256i, __m512, __m512i, __mmask16, _mm512_abs_ps, _mm512_add_epi32, _mm512_add_ps,
+    _mm512_castps256_ps512, _mm512_castsi512_si256, _mm512_cmp_ps_mask, _mm512_cmpeq_epi32_mask,
+    _mm512_cmpgt_epi32_mask, _mm512_cvtepi32_ps, _mm512_cvttps_epi32, _mm512_div_ps,
+    _mm512_extracti64x4_epi64, _mm512_insertf32x8, _mm512_loadu_epi32, _mm512_loadu_ps,
+    _mm512_mask_add_ps, _mm512_mask_blend_epi32, _mm512_mask_blend_ps, _mm512_max_epi32,
+    _mm512_max_ps, _mm512_min_epi32, _mm512_min_ps, _mm512_mul_ps, _mm512_mullo_epi32,
+    _mm512_reduce_min_epi32, _mm512_set1_epi32, _mm512_set1_ps, _mm512_setzero_ps,
+    _mm512_setzero_si512, _mm512_slli_epi32, _mm512_sqrt_ps, _mm512_srli_epi32,
+    _mm512_storeu_epi32, _mm512_storeu_ps, _mm512_sub_epi32, _mm512_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ,
+    _CMP_LE_OQ, _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
+};
+
+use super::super::generic::{AMBIENT, DIFFUSE};
+use super::super::MarchParams;
+use super::avx2::Gather8;
+use super::packet::{corners_exact, rgba8, Packet, PacketStats, PacketTables};
+use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
+use crate::render::sampler::TrilinearSampler;
+use crate::render::skip::LEAP_MIN;
+
+/// Rays per packet.
+pub(crate) const LANES: usize = 16;
+
+/// Whether this CPU runs the AVX-512 packet loop: AVX-512 F, BW, DQ and VL, and AVX2
+/// (`POFVR_SIMD=avx2` or `sse2` turns it off, for comparisons).
+pub(crate) fn available() -> bool {
+    std::env::var("POFVR_SIMD").map_or(true, |s| {
+        !s.eq_ignore_ascii_case("avx2") && !s.eq_ignore_ascii_case("sse2")
+    }) && std::arch::is_x86_feature_detected!("avx2")
+        && std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx512bw")
+        && std::arch::is_x86_feature_detected!("avx512dq")
+        && std::arch::is_x86_feature_detected!("avx512vl")
+}
+
+/// Sixteen floats as a vector.
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn vec16(v: [f32; LANES]) -> __m512 {
+    // SAFETY: `v` holds sixteen f32.
+    unsafe { _mm512_loadu_ps(v.as_ptr()) }
+}
+
+/// The two eight-lane halves of `v`.
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn halves(v: __m512i) -> [__m256i; 2] {
+    [_mm512_castsi512_si256(v), _mm512_extracti64x4_epi64::<1>(v)]
+}
+
+/// Two eight-lane halves as one vector.
+#[target_feature(enable = "avx512f,avx512dq")]
+#[inline]
+fn join(lo: __m256, hi: __m256) -> __m512 {
+    _mm512_insertf32x8::<1>(_mm512_castps256_ps512(lo), hi)
+}
+
+/// Lane-wise `a <= x && x <= b`, as bits.
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn within(a: __m512i, x: __m512i, b: __m512i) -> __mmask16 {
+    !(_mm512_cmpgt_epi32_mask(a, x) | _mm512_cmpgt_epi32_mask(x, b))
+}
+
+/// [`super::avx2::lambert8`] on sixteen lanes: the same operations in the same order.
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn lambert16(g: [__m512; 3], spacing: [__m512; 3], dir: [__m512; 3]) -> __m512 {
+    let g = [
+        _mm512_div_ps(g[0], spacing[0]),
+        _mm512_div_ps(g[1], spacing[1]),
+        _mm512_div_ps(g[2], spacing[2]),
+    ];
+    let dot3 = |a: [__m512; 3], b: [__m512; 3]| {
+        _mm512_add_ps(
+            _mm512_add_ps(_mm512_mul_ps(a[0], b[0]), _mm512_mul_ps(a[1], b[1])),
+            _mm512_mul_ps(a[2], b[2]),
+        )
+    };
+    // `vsqrtps` and `vdivps` round correctly, as `f32::sqrt` and `/` do.
+    let len = _mm512_sqrt_ps(dot3(g, g));
+    let ndotl = _mm512_abs_ps(_mm512_div_ps(dot3(g, dir), len));
+    let l = _mm512_add_ps(
+        _mm512_set1_ps(AMBIENT),
+        _mm512_mul_ps(_mm512_set1_ps(DIFFUSE), ndotl),
+    );
+    // Where the gradient gives no normal the factor is 1 (and the NaN of 0/0 is dropped).
+    let flat = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(len, _mm512_set1_ps(f32::EPSILON));
+    _mm512_mask_blend_ps(flat, l, _mm512_set1_ps(1.0))
+}
+
+/// Marches `pk` front to back through the volume of `tri`, skipping the empty cells of
+/// `tab`, shaded when `SHADE` (then `p.shade` is set); see the [module](self) and
+/// [`super::packet::march8`], whose steps this follows one for one.
+///
+/// # Safety
+/// AVX-512 F/BW/DQ/VL and AVX2 are available and [`super::avx2::fits`] holds; `tab` was
+/// built for this volume and classification, with the padding it documents.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
+pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
+    p: &MarchParams<'_>,
+    tri: &TrilinearSampler<'_, T>,
+    tab: &PacketTables<'_>,
+    pk: &mut Packet<LANES>,
+) -> PacketStats {
+    debug_assert!(super::avx2::fits(tri));
+    debug_assert_eq!(SHADE, p.shade.is_some());
+    let mut st = PacketStats::default();
+    let lane = |f: &dyn Fn(usize) -> f32| vec16(std::array::from_fn(f));
+    let o = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].o[a]));
+    let d = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].d[a]));
+    let dir = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].dir[a]));
+    // `1 / d`, 0 where `d` is 0: for the leap estimates only.
+    let inv = d.map(|d| {
+        let zero = _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(d, _mm512_setzero_ps());
+        _mm512_mask_blend_ps(
+            zero,
+            _mm512_div_ps(_mm512_set1_ps(1.0), d),
+            _mm512_setzero_ps(),
+        )
+    });
+    let spacing: [__m512; 3] = p.shade.unwrap_or([1.0; 3]).map(|s| _mm512_set1_ps(s));
+    // SAFETY: `k0` and `k1` hold sixteen i32.
+    let (k0v, k1v) = unsafe {
+        (
+            _mm512_loadu_epi32(pk.k0.as_ptr()),
+            _mm512_loadu_epi32(pk.k1.as_ptr()),
+        )
+    };
+    let k1f = _mm512_cvtepi32_ps(k1v);
+    let has = _mm512_cmpgt_epi32_mask(k1v, k0v);
+    if has == 0 {
+        return st;
+    }
+    let big = _mm512_set1_epi32(i32::MAX);
+    let one = _mm512_set1_epi32(1);
+    let hmin =
+        |m: __mmask16, v: __m512i| _mm512_reduce_min_epi32(_mm512_mask_blend_epi32(m, big, v));
+    let mut k = hmin(has, k0v);
+    let mut acc = [0, 1, 2, 3].map(|c| lane(&|j| pk.acc[j][c]));
+    let (step, ert) = (p.step, _mm512_set1_ps(p.ert));
+    let stepv = _mm512_set1_ps(step);
+    let inv_step = _mm512_set1_ps(1.0 / step);
+    let zero = _mm512_setzero_ps();
+    let maxv = tri.max.map(|m| _mm512_set1_ps(m));
+    // Cells are below 2^24 per axis, so the floats are exact.
+    let last = tri.last_cell.map(|c| _mm512_set1_ps(c as f32));
+    let [_, s1, s2] = tri.stride;
+    let strides = [1, s1 as i32, s2 as i32].map(|s| _mm512_set1_epi32(s));
+    let nlast = tab.cells.map(|n| _mm512_set1_epi32(n - 1));
+    let (n0, n01) = (
+        _mm512_set1_epi32(tab.cells[0]),
+        _mm512_set1_epi32(tab.cells[0] * tab.cells[1]),
+    );
+    let v = tri.v;
+    let [sx, sy, sz] = tri.step;
+    // The largest base whose reads stay inside the data; -1 when none does.
+    let limit = (v.len() as i64 - 1 - (sx + sy + sz + T::OVERREAD) as i64).max(-1) as i32;
+    let limit = _mm512_set1_epi32(limit);
+    let cls = p.cls;
+    let rgba = cls.rgba.as_ptr().cast::<f32>();
+    let (lo, scale, bin_max) = (
+        _mm512_set1_ps(cls.lo),
+        _mm512_set1_ps(cls.scale),
+        _mm512_set1_ps(crate::render::transfer_function::BIN_MAX),
+    );
+    let shift = |i: __m512i| _mm512_srli_epi32::<CELL_SHIFT>(i);
+    // The occupancy cell per axis of each lane's sample at `t` (lane-wise `Skip::cell`).
+    let cells_at = |t: __m512| {
+        [0, 1, 2].map(|a| {
+            let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
+            let c = _mm512_min_ps(_mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]), last[a]);
+            shift(_mm512_cvttps_epi32(c))
+        })
+    };
+    let leap_ray = LeapRay {
+        o,
+        d,
+        inv,
+        k1v,
+        k1f,
+        nlast,
+        stepv,
+        inv_step,
+    };
+    // The occupancy cells of the last sample looked up (none yet), their entries, and
+    // which of them are occupied, as bits.
+    let mut last_idx = _mm512_set1_epi32(-1);
+    let mut lv = [0i32; LANES];
+    let mut occ_bits: __mmask16 = 0;
+    loop {
+        let kv = _mm512_set1_epi32(k);
+        // Lanes whose ray claims sample k and has not terminated.
+        let started = _mm512_cmpgt_epi32_mask(_mm512_add_epi32(kv, one), k0v);
+        let before_end = _mm512_cmpgt_epi32_mask(k1v, kv);
+        // As the reference's `acc[3] >= ert` stop, negated.
+        let open = _mm512_cmp_ps_mask::<_CMP_NGE_UQ>(acc[3], ert);
+        let live = started & before_end & open;
+        // Lanes yet to start.
+        let pending = !started & has;
+        if live == 0 {
+            if pending == 0 {
+                break;
+            }
+            k = hmin(pending, k0v);
+            continue;
+        }
+        let t = _mm512_set1_ps(k as f32 * step);
+        let mut base = _mm512_setzero_si512();
+        let mut f = [zero; 3];
+        let mut cell = [_mm512_setzero_si512(); 3];
+        for a in 0..3 {
+            // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
+            let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
+            let x = _mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]);
+            let i = _mm512_cvttps_epi32(_mm512_min_ps(x, last[a]));
+            f[a] = _mm512_sub_ps(x, _mm512_cvtepi32_ps(i));
+            base = _mm512_add_epi32(base, _mm512_mullo_epi32(i, strides[a]));
+            cell[a] = shift(i);
+        }
+        let idx = _mm512_add_epi32(
+            _mm512_add_epi32(
+                _mm512_mullo_epi32(cell[2], n01),
+                _mm512_mullo_epi32(cell[1], n0),
+            ),
+            cell[0],
+        );
+        // The entries of the previous sample's cells serve while no lane changed cell.
+        if _mm512_cmpeq_epi32_mask(idx, last_idx) != 0xFFFF {
+            last_idx = idx;
+            let mut ci = [0u32; LANES];
+            // SAFETY: `ci` holds sixteen u32.
+            unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
+            occ_bits = 0;
+            for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
+                // SAFETY: every lane's cell is inside the grid (positions are clamped).
+                let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+                *l = i32::from(e);
+                occ_bits |= u16::from(e & OCCUPIED != 0) << j;
+            }
+        }
+        if occ_bits & live == 0 {
+            // SAFETY: `lv` holds sixteen i32.
+            let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
+            // Every live lane is in an empty cell: the packet leaps.
+            let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+            let kb = _mm512_mask_blend_epi32(live, big, kb);
+            let kb = _mm512_min_epi32(kb, _mm512_mask_blend_epi32(pending, big, k0v));
+            let next = _mm512_reduce_min_epi32(kb).max(k + 1);
+            st.skipped += u64::from(live.count_ones()) * (next - k) as u64;
+            k = next;
+            continue;
+        }
+        let [b0, b1] = halves(base);
+        // SAFETY: every lane's position is clamped into the data, so its cell's corners
+        // are inside `v`; past `limit` the gather of a wider word would read past the end.
+        let c: [__m512; 8] = unsafe {
+            let (h0, h1) = if _mm512_cmpgt_epi32_mask(base, limit) == 0 {
+                (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
+            } else {
+                (
+                    corners_exact(v, b0, tri.step),
+                    corners_exact(v, b1, tri.step),
+                )
+            };
+            std::array::from_fn(|i| join(h0[i], h1[i]))
+        };
+        let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
+        let lerp = |a: __m512, b: __m512, w: __m512| {
+            _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), w))
+        };
+        let c00 = lerp(c000, c100, f[0]);
+        let c10 = lerp(c010, c110, f[0]);
+        let c01 = lerp(c001, c101, f[0]);
+        let c11 = lerp(c011, c111, f[0]);
+        let c0 = lerp(c00, c10, f[1]);
+        let c1 = lerp(c01, c11, f[1]);
+        let value = lerp(c0, c1, f[2]);
+        // As `ClassifierView::sample`: `vmaxps` returns its second operand (0) for NaN.
+        let x = _mm512_min_ps(
+            _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(value, lo), scale), zero),
+            bin_max,
+        );
+        let [bl, bh] = halves(_mm512_cvttps_epi32(x));
+        // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
+        let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
+        let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
+        st.samples += u64::from(live.count_ones());
+        let opaque = live & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
+        if opaque != 0 {
+            let mut s = [r, g, b];
+            if SHADE {
+                // `Cell::gradient`, lane-wise.
+                let (d00, d10) = (_mm512_sub_ps(c100, c000), _mm512_sub_ps(c110, c010));
+                let (d01, d11) = (_mm512_sub_ps(c101, c001), _mm512_sub_ps(c111, c011));
+                let (e0, e1) = (_mm512_sub_ps(c10, c00), _mm512_sub_ps(c11, c01));
+                let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
+                let g = [
+                    lerp(x0, x1, f[2]),
+                    lerp(e0, e1, f[2]),
+                    _mm512_sub_ps(c1, c0),
+                ];
+                let l = lambert16(g, spacing, dir);
+                s = s.map(|s| _mm512_mul_ps(s, l));
+            }
+            let w = _mm512_sub_ps(_mm512_set1_ps(1.0), acc[3]);
+            for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
+                *a = _mm512_mask_add_ps(*a, opaque, *a, _mm512_mul_ps(w, s));
+            }
+        }
+        k += 1;
+    }
+    let mut out = [[0f32; LANES]; 4];
+    for (o, a) in out.iter_mut().zip(acc) {
+        // SAFETY: `o` holds sixteen f32.
+        unsafe { _mm512_storeu_ps(o.as_mut_ptr(), a) };
+    }
+    for (j, px) in pk.acc.iter_mut().enumerate() {
+        *px = [out[0][j], out[1][j], out[2][j], out[3][j]];
+    }
+    st
+}
+
+/// A packet's rays as [`leap_end`] reads them.
+struct LeapRay {
+    o: [__m512; 3],
+    d: [__m512; 3],
+    inv: [__m512; 3],
+    k1v: __m512i,
+    k1f: __m512,
+    nlast: [__m512i; 3],
+    stepv: __m512,
+    inv_step: __m512,
+}
+
+/// [`super::packet`]'s `leap_end` on sixteen lanes, step for step: each lane's sample `k`
+/// lies in the empty cell `c` with entry `leap`; the first sample, in `k + 1 ..= k1`, past
+/// the cube of empty cells around it, every sample before it checked by the sampler's own
+/// cells. Lanes whose entry is below [`LEAP_MIN`] get the exit of their own cell.
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn leap_end(
+    kv: __m512i,
+    c: &[__m512i; 3],
+    leap: __m512i,
+    r: &LeapRay,
+    cells_at: &impl Fn(__m512) -> [__m512i; 3],
+) -> __m512i {
+    let one = _mm512_set1_epi32(1);
+    // The cube's half-width: distance − 1 where leaps are worth it, else the cell alone.
+    let far = _mm512_cmpgt_epi32_mask(leap, _mm512_set1_epi32(LEAP_MIN - 1));
+    let zero_i = _mm512_setzero_si512();
+    let rad = _mm512_mask_blend_epi32(far, zero_i, _mm512_sub_epi32(leap, one));
+    let zero = _mm512_setzero_ps();
+    let mut lo = [zero_i; 3];
+    let mut hi = [zero_i; 3];
+    let mut te = _mm512_set1_ps(f32::INFINITY);
+    for a in 0..3 {
+        lo[a] = _mm512_max_epi32(_mm512_sub_epi32(c[a], rad), zero_i);
+        hi[a] = _mm512_min_epi32(_mm512_add_epi32(c[a], rad), r.nlast[a]);
+        let pos = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(r.d[a], zero);
+        let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(r.d[a], zero);
+        let up = pos & _mm512_cmpgt_epi32_mask(r.nlast[a], hi[a]);
+        let down = neg & _mm512_cmpgt_epi32_mask(lo[a], zero_i);
+        let face = _mm512_mask_blend_epi32(
+            up,
+            _mm512_slli_epi32::<CELL_SHIFT>(lo[a]),
+            _mm512_slli_epi32::<CELL_SHIFT>(_mm512_add_epi32(hi[a], one)),
+        );
+        let ta = _mm512_mul_ps(_mm512_sub_ps(_mm512_cvtepi32_ps(face), r.o[a]), r.inv[a]);
+        let ta = _mm512_mask_blend_ps(up | down, _mm512_set1_ps(f32::INFINITY), ta);
+        te = _mm512_min_ps(te, ta);
+    }
+    // The first sample at or past `te`, and at least the next one.
+    let q = _mm512_max_ps(_mm512_min_ps(_mm512_mul_ps(te, r.inv_step), r.k1f), zero);
+    let kq = _mm512_cvttps_epi32(q);
+    let up = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(_mm512_cvtepi32_ps(kq), q);
+    let kb = _mm512_mask_blend_epi32(up, kq, _mm512_add_epi32(kq, one));
+    let kb = _mm512_min_epi32(_mm512_max_epi32(kb, _mm512_add_epi32(kv, one)), r.k1v);
+    let inside = |k: __m512i| {
+        let t = _mm512_mul_ps(_mm512_cvtepi32_ps(k), r.stepv);
+        let c = cells_at(t);
+        within(lo[0], c[0], hi[0]) & within(lo[1], c[1], hi[1]) & within(lo[2], c[2], hi[2])
+    };
+    // Settled by one sample where a rounding put the estimate past a face.
+    let kb1 = _mm512_sub_epi32(kb, one);
+    let in1 = inside(kb1);
+    if in1 == 0xFFFF {
+        return kb;
+    }
+    let in2 = inside(_mm512_sub_epi32(kb1, one));
+    let fallback = _mm512_mask_blend_epi32(in2, _mm512_add_epi32(kv, one), kb1);
+    _mm512_mask_blend_epi32(in1, fallback, kb)
+}
