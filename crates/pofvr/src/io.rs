@@ -30,6 +30,24 @@ pub fn write_atomic(
         path: path.to_path_buf(),
         err,
     };
+    write_atomic_with(path, |f| fill(f).map_err(wrap))
+}
+
+/// As [`write_atomic`], for a `fill` with its own error type and result (a writer that
+/// also reads, say, and reports both kinds of failure): `fill`'s error is returned as it
+/// is, and the temp file's own failures as [`WriteError`]s naming `path`.
+///
+/// # Errors
+/// `fill`'s error, or a [`WriteError`] when the temp file cannot be made, synced or renamed;
+/// the temp file is removed in every case.
+pub fn write_atomic_with<T, E: From<WriteError>>(
+    path: &Path,
+    fill: impl FnOnce(&mut File) -> Result<T, E>,
+) -> Result<T, E> {
+    let wrap = |err| WriteError {
+        path: path.to_path_buf(),
+        err,
+    };
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -39,11 +57,11 @@ pub fn write_atomic(
         .suffix(".tmp")
         .tempfile_in(dir)
         .map_err(wrap)?;
-    fill(tmp.as_file_mut()).map_err(wrap)?;
+    let value = fill(tmp.as_file_mut())?;
     tmp.as_file_mut().flush().map_err(wrap)?;
     tmp.as_file().sync_data().map_err(wrap)?;
     tmp.persist(path).map_err(|e| wrap(e.error))?;
-    Ok(())
+    Ok(value)
 }
 
 /// Writes bytes atomically.

@@ -127,37 +127,13 @@ pub fn build_streamed(
 ) -> Result<StreamedBuild, PofError> {
     let slabs = SlabVoxels::default();
     with_plan(volume, &slabs, grid, tf, sampled, settings, |plan| {
-        let wrap = |err| {
-            PofError::Write(WriteError {
-                path: out.to_path_buf(),
-                err,
-            })
-        };
-        let dir = match out.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
-        let mut tmp = tempfile::Builder::new()
-            .prefix(".pofvr-")
-            .suffix(".tmp")
-            .tempfile_in(dir)
-            .map_err(wrap)?;
         let hooks = Hooks {
             progress,
             cancel: None,
         };
-        let report = stream(
-            volume,
-            source,
-            &slabs,
-            &plan,
-            budget,
-            (tmp.as_file_mut(), out),
-            &hooks,
-        )?;
-        tmp.as_file().sync_data().map_err(wrap)?;
-        tmp.persist(out).map_err(|e| wrap(e.error))?;
-        Ok(report)
+        crate::io::write_atomic_with(out, |f| {
+            stream(volume, source, &slabs, &plan, budget, (f, out), &hooks)
+        })
     })
 }
 
