@@ -29,6 +29,21 @@ fn settings(method: PofMethod) -> PofSettings {
     }
 }
 
+/// The streamed build of `vol` (the Shepp–Logan family) from `source` into `out` under
+/// `budget`.
+fn build_to(
+    vol: &Volume,
+    source: &BrickSource,
+    grid: &BrickGrid,
+    s: &PofSettings,
+    budget: u64,
+    out: &Path,
+) -> Result<crate::pof::StreamedBuild, crate::pof::PofError> {
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let sampled = SampledTf::new(&tf, grid.value_range());
+    build_streamed(vol, source, grid, &tf, &sampled, s, budget, out, &|_, _| {})
+}
+
 fn files_in(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)
         .unwrap()
@@ -56,18 +71,7 @@ fn a_streamed_build_writes_the_in_memory_builds_file_for_every_method_and_slab_s
         // 1 byte: a row of bricks per slab; 40 kB: a few rows; 1 GiB: a layer per slab.
         for budget in [1, 40_000, 1 << 30] {
             let out = dir.join("streamed.pof");
-            let r = build_streamed(
-                &vol,
-                &source,
-                &grid,
-                &tf,
-                &sampled,
-                &s,
-                budget,
-                &out,
-                &|_, _| {},
-            )
-            .unwrap();
+            let r = build_to(&vol, &source, &grid, &s, budget, &out).unwrap();
             let got = std::fs::read(&out).unwrap();
             assert!(got == expected, "{method:?} at {budget}: files differ");
             assert_eq!(r.file_bytes, expected.len() as u64);
@@ -94,8 +98,6 @@ fn a_streamed_build_writes_the_in_memory_builds_file_for_every_method_and_slab_s
 #[test]
 fn a_volume_cut_short_during_a_streamed_build_is_an_error_naming_it_and_leaves_nothing() {
     let (dir, vol, grid, path) = setup("pof-short");
-    let tf = families::for_phantom(Phantom::SheppLogan);
-    let sampled = SampledTf::new(&tf, grid.value_range());
     let source = BrickSource::of(&vol).unwrap();
     let before = files_in(&dir);
     // Half the voxels are gone: the slabs past them cannot be read.
@@ -107,16 +109,13 @@ fn a_volume_cut_short_during_a_streamed_build_is_an_error_naming_it_and_leaves_n
         .set_len(len / 2)
         .unwrap();
     let out = dir.join("cut.pof");
-    let e = build_streamed(
+    let e = build_to(
         &vol,
         &source,
         &grid,
-        &tf,
-        &sampled,
         &settings(PofMethod::Typical),
         1 << 20,
         &out,
-        &|_, _| {},
     )
     .expect_err("the file is short");
     assert!(e.to_string().contains(&path.display().to_string()), "{e}");
@@ -127,20 +126,15 @@ fn a_volume_cut_short_during_a_streamed_build_is_an_error_naming_it_and_leaves_n
 #[test]
 fn an_unwritable_output_is_an_error_naming_it() {
     let (dir, vol, grid, _) = setup("pof-unwritable");
-    let tf = families::for_phantom(Phantom::SheppLogan);
-    let sampled = SampledTf::new(&tf, grid.value_range());
     let source = BrickSource::of(&vol).unwrap();
     let out = dir.join("no-such-dir").join("x.pof");
-    let e = build_streamed(
+    let e = build_to(
         &vol,
         &source,
         &grid,
-        &tf,
-        &sampled,
         &settings(PofMethod::Typical),
         1 << 20,
         &out,
-        &|_, _| {},
     )
     .expect_err("no such directory");
     assert!(e.to_string().contains(&out.display().to_string()), "{e}");
