@@ -254,6 +254,14 @@ pub(crate) struct FrameArgs {
     /// > default: hilbert
     #[arg(long, default_value = "hilbert")]
     pub(crate) curve: String,
+    /// How bricks are dealt to ranks: curve (the paper's: round-robin along --curve), chunks
+    /// (one run of store chunks along the curve per rank, balanced by non-empty bricks, so
+    /// each rank decodes only its part of a Zarr store) or auto (chunks for a Zarr level read
+    /// chunk by chunk under --memory-budget whose chunks are larger than a brick, curve
+    /// otherwise). The frame is the same; `--stats` says which was used (`deal`).
+    /// > default: auto
+    #[arg(long, default_value = "auto")]
+    pub(crate) deal: String,
     /// Owners per brick: 1 (the paper) renders each visible brick on the rank it was dealt
     /// to; 2 holds every brick on two ranks and gives it, each frame, to the less loaded
     /// one (better balance for twice the brick memory). The frame is the same.

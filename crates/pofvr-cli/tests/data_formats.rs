@@ -249,7 +249,34 @@ fn a_zarr_level_larger_than_the_budget_renders_from_chunks_bit_for_bit() {
         let evicted = c["evictions"].as_u64().unwrap() + c["not_cached"].as_u64().unwrap();
         assert!(evicted > 0, "{s}");
         assert!(c["bytes_read"].as_u64().unwrap() > 0, "{s}");
+        // Read chunk by chunk, the bricks are dealt by chunks; asked, along the curve: the
+        // same frame either way.
+        assert_eq!(s["deal"], "chunks", "{s}");
+        let (curve, s) = render(
+            &["--memory-budget", "4M", "--ranks", ranks, "--deal", "curve"],
+            &format!("c{ranks}.raw"),
+            &format!("c{ranks}.json"),
+        );
+        assert!(
+            curve == want,
+            "{ranks} ranks dealt along the curve: the frame differs"
+        );
+        assert_eq!(s["deal"], "curve", "{s}");
     }
+    // Without a budget the level is decoded whole: no chunks to deal by.
+    let (_, s) = render(&["--ranks", "2"], "d.raw", "d.json");
+    assert_eq!(s["deal"], "curve", "{s}");
+    let o = pofvr(
+        &[
+            "render", "b.zarr", "--level", "0", "--tf", tf, "--size", "48x48", "-o", "e.png",
+            "--ranks", "2", "--deal", "chunks",
+        ],
+        dir.path(),
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("--deal chunks") && e.contains("b.zarr"), "{e}");
+    assert!(!dir.path().join("e.png").exists());
     // The whole-volume pass cannot run from chunks: a clear error, exit code 2, no image.
     let o = pofvr(
         &[

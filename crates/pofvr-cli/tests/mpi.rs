@@ -521,6 +521,8 @@ fn mpi_ranks_under_a_budget_read_only_their_own_bricks_from_zarr_chunks() {
                 serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
             assert_each_visible_brick_rendered_once(&s);
             assert_eq!(s["memory_budget"]["source"], "zarr chunks", "{s}");
+            // Read chunk by chunk: dealt by chunks, so that each rank decodes its part.
+            assert_eq!(s["deal"], "chunks", "{s}");
             for r in s["ranks"].as_array().unwrap() {
                 let n = |k: &str| r[k].as_u64().unwrap();
                 // Every brick a rank renders comes from its own store: none is copied.
@@ -536,7 +538,20 @@ fn mpi_ranks_under_a_budget_read_only_their_own_bricks_from_zarr_chunks() {
             }
             for m in s["memory"].as_array().unwrap() {
                 assert_eq!(m["brick_copy_bytes"], 0, "{s}");
+                assert!(m["io_read_bytes"].as_u64().unwrap() > 0, "{s}");
             }
         }
+        // The paper's deal, asked for: the same frame.
+        let got = format!("mpi-{cull}-curve.raw");
+        let a = args(cull, &got, "curve.json");
+        let extra = ["--memory-budget", "4M", "--deal", "curve"];
+        let (o, _) = mpirun(3, &refs(&strs(&a, &extra)), d);
+        assert!(o.status.success(), "{cull} --deal curve: {}", text(&o));
+        let diff = max_diff(&d.join(&got), &d.join(&want));
+        assert!(diff <= 1e-6, "{cull} --deal curve: max diff {diff:e}");
+        let s: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join("curve.json")).unwrap()).unwrap();
+        assert_eq!(s["deal"], "curve", "{s}");
+        assert_each_visible_brick_rendered_once(&s);
     }
 }

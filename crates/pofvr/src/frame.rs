@@ -17,7 +17,7 @@ use crate::cull::{
     verify_tile, CoreLevels, CullMode, CullResult, CullScratch, Culler, FrameBricks, OpacityBound,
     Predictor, Proxy, VerifyView,
 };
-use crate::distribute::{BrickAssignment, Curve, DistributeError};
+use crate::distribute::{BrickAssignment, Curve, Deal, DistributeError};
 use crate::error::{OutOfRange, Setting, Value};
 use crate::pof::{PofError, PofTable};
 use crate::render::{
@@ -43,8 +43,8 @@ fn neighbours(c: [usize; 3], counts: [usize; 3]) -> impl Iterator<Item = [usize;
     })
 }
 
-/// A brick assignment and the (curve, ranks) it was dealt for.
-type CachedAssignment = ((Curve, usize, usize), std::sync::Arc<BrickAssignment>);
+/// A brick assignment and the (curve, deal, ranks, replicas) it was dealt for.
+type CachedAssignment = ((Curve, Deal, usize, usize), std::sync::Arc<BrickAssignment>);
 
 /// Everything a frame needs that does not change with the camera: the opened volume, its
 /// bricks and the tabulated transfer-function family.
@@ -66,6 +66,9 @@ pub struct RenderJob {
     /// Under a memory budget, the cache the brick engine reads each brick it renders from
     /// (see [`crate::store`]); `None` samples the volume.
     pub store: Option<std::sync::Arc<crate::store::BrickCache>>,
+    /// How bricks are dealt to ranks ([`RenderJob::assignment`]); every rank of a job must
+    /// use the same.
+    pub deal: Deal,
     /// The last [`RenderJob::assignment`], by curve and rank count: every frame asks for
     /// it, and it only changes with the bricks and bases, which a job keeps.
     assignment_cache: std::sync::Mutex<Option<CachedAssignment>>,
@@ -128,11 +131,16 @@ impl RenderJob {
     /// on the family's bases and the data only, not on the weights or the view, so a
     /// distributed rank's bricks stay put.
     ///
+    /// A volume read chunk by chunk from a store ([`RenderJob::deal`],
+    /// [`crate::distribute::chunks::chunk_shape_for`]) is dealt by chunks instead: one run
+    /// of chunks along `curve` per rank, balanced by the bricks the family can show
+    /// ([`BrickAssignment::by_chunks`]), so that each rank decodes only its part.
+    ///
     /// `replicas` owners per brick (1: the paper's deal).
     ///
     /// # Errors
-    /// [`DistributeError`] for a rank count of zero or one past `u32::MAX`, or replicas
-    /// outside `1..=ranks`.
+    /// [`DistributeError`] for a rank count of zero or one past `u32::MAX`, replicas
+    /// outside `1..=ranks`, or [`Deal::Chunks`] on a volume not read by chunks.
     pub fn assignment(
         &self,
         curve: Curve,
@@ -144,17 +152,32 @@ impl RenderJob {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         if let Some((key, a)) = cache.as_ref() {
-            if *key == (curve, ranks, replicas) {
+            if *key == (curve, self.deal, ranks, replicas) {
                 return Ok(a.clone());
             }
         }
-        let order = crate::distribute::SfcOrder::new(self.grid.counts(), curve)?;
+        let brick_size = self.grid.brick_size();
         let layers = self.occupied_layers();
-        let a = std::sync::Arc::new(
-            BrickAssignment::from_order_classes(&order, ranks, &|id| layers[id.index()])?
-                .with_replicas(replicas)?,
-        );
-        *cache = Some(((curve, ranks, replicas), a.clone()));
+        let dealt = match crate::distribute::chunks::chunk_shape_for(
+            &self.volume,
+            brick_size,
+            self.deal,
+        )? {
+            Some(chunk) => BrickAssignment::by_chunks(
+                self.grid.counts(),
+                brick_size,
+                chunk,
+                curve,
+                ranks,
+                &|id| u64::from(layers[id.index()] > 0),
+            )?,
+            None => {
+                let order = crate::distribute::SfcOrder::new(self.grid.counts(), curve)?;
+                BrickAssignment::from_order_classes(&order, ranks, &|id| layers[id.index()])?
+            }
+        };
+        let a = std::sync::Arc::new(dealt.with_replicas(replicas)?);
+        *cache = Some(((curve, self.deal, ranks, replicas), a.clone()));
         Ok(a)
     }
 
@@ -251,6 +274,7 @@ impl RenderJob {
             settings,
             bricks: None,
             store: None,
+            deal: Deal::Auto,
             assignment_cache: std::sync::Mutex::default(),
             cull_scratch: CullScratch::new(),
             proxy: std::sync::OnceLock::new(),
@@ -436,6 +460,10 @@ pub struct FrameStats {
     pub cache_peak_bytes: u64,
     /// The store's memory budget in bytes (`None` without a store).
     pub memory_budget: Option<u64>,
+    /// How the brick engine dealt bricks to ranks: `"curve"` (the paper's, round-robin
+    /// along the curve) or `"chunks"` (one run of store chunks per rank); `None` for the
+    /// engines without ranks.
+    pub deal: Option<&'static str>,
 }
 
 /// Brick counts of a frame.
@@ -496,6 +524,10 @@ pub struct RankStats {
     /// Bricks the store served it from its cache.
     #[serde(default)]
     pub cache_hits: u64,
+    /// Zarr chunks decoded for the bricks it read (ranks of one process share the chunk
+    /// cache: a chunk counts for the rank that decoded it).
+    #[serde(default)]
+    pub chunks_decoded: u64,
 }
 
 /// Per-frame choices.
@@ -1126,6 +1158,7 @@ fn rank_frame(
         bytes_read: reads.bytes_read(),
         bricks_read: reads.bricks_read(),
         cache_hits: reads.cache_hits(),
+        chunks_decoded: reads.chunks_decoded(),
     };
     let gathered = comm.gather(
         Rank(0),
@@ -1177,6 +1210,7 @@ fn rank_frame(
         stats.memory_budget = Some(store.budget());
     }
     stats.ranks = ranks;
+    stats.deal = Some(assignment.deal().name());
     Ok(Some((image, stats)))
 }
 

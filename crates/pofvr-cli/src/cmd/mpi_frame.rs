@@ -48,6 +48,7 @@ impl Backend for Mpi<'_> {
     }
 
     fn grid(&self, volume: &Volume, brick_size: usize, curve: Curve) -> Result<BrickGrid> {
+        // Dealt as the rank was told when it was made (`run`: `--deal`).
         Ok(self
             .0
             .measure_grid_within(volume, brick_size, curve, self.1)?)
@@ -98,7 +99,9 @@ pub(crate) fn run(a: &RenderArgs, ui: &Ui) -> Result<()> {
             bail!("--whole is the single-process reference renderer; run it without mpirun");
         }
         let budget = render::memory_budget(a.memory_budget.as_deref())?;
-        render::run_with(a, ui, &Mpi(DistributedRank::new(&comm), budget))
+        let deal = render::deal(&a.frame)?;
+        let rank = DistributedRank::new(&comm).with_deal(deal);
+        render::run_with(a, ui, &Mpi(rank, budget))
     })();
     if let Err(e) = result {
         comm.abort_job(&format!("{e:#}"));

@@ -4,7 +4,7 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use pofvr::brick::BrickGrid;
 use pofvr::cull::Predictor;
-use pofvr::distribute::Curve;
+use pofvr::distribute::{Curve, Deal};
 use pofvr::frame::{FrameStats, RenderJob};
 use pofvr::render::{Camera, Image};
 use pofvr::volume::Volume;
@@ -85,6 +85,11 @@ pub(crate) struct MemoryStatus {
     /// Voxel bytes of the private copies of this rank's own bricks (MPI ranks).
     #[serde(default)]
     pub(crate) brick_copy_bytes: u64,
+    /// Bytes the process read by `read` calls so far (`rchar` of `/proc/self/io`): the
+    /// store's chunks and files while measuring the ranges and rendering, which the
+    /// frames' `bytes_read` count only in part (not the measuring).
+    #[serde(default)]
+    pub(crate) io_read_bytes: u64,
 }
 
 impl MemoryStatus {
@@ -107,6 +112,14 @@ impl MemoryStatus {
             rss_anon_bytes: kib("RssAnon"),
             rss_file_bytes: kib("RssFile"),
             brick_copy_bytes: 0,
+            io_read_bytes: std::fs::read_to_string("/proc/self/io")
+                .ok()
+                .and_then(|io| {
+                    io.lines()
+                        .find_map(|l| l.strip_prefix("rchar:"))
+                        .and_then(|v| v.trim().parse().ok())
+                })
+                .unwrap_or(0),
         }
     }
 }
@@ -147,6 +160,7 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         .curve
         .parse()
         .map_err(|e| anyhow::anyhow!("--curve: {e}"))?;
+    let deal = deal(&a.frame)?;
     // An MPI rank measures only its own bricks (the backend's grid) and keeps copies of
     // them; one process under a budget streams the file once instead.
     let grid = match budget {
@@ -160,6 +174,12 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
     };
     let mut job = RenderJob::with_grid(vol, tf, grid, resolve::settings(&a.view))?;
     job.store = store;
+    job.deal = deal;
+    // A deal by chunks on a volume without them fails here, before any frame.
+    if deal == Deal::Chunks {
+        pofvr::distribute::chunks::chunk_shape_for(&job.volume, a.volume.brick, deal)
+            .map_err(|e| anyhow!("--deal chunks: {e}"))?;
+    }
     backend.prepare(&mut job, curve, a.frame.replicas)?;
     let mut scene = Scene::from_job(job)?;
     sp.set_message("rendering");
@@ -270,6 +290,18 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
             mode.name(),
             b.visible
         );
+        if let (Some(deal), [_, _, ..]) = (stats.deal, stats.ranks.as_slice()) {
+            let per: Vec<String> = stats
+                .ranks
+                .iter()
+                .map(|r| r.bricks_rendered.to_string())
+                .collect();
+            eprintln!(
+                "ranks: {} (bricks dealt by {deal}), bricks rendered per rank {}",
+                stats.ranks.len(),
+                per.join(" / ")
+            );
+        }
         if let Some(p) = stats.predictor {
             eprintln!(
                 "verified: predicted by {p}, {} repaired ({:.1}% of the rendered)",
@@ -305,6 +337,11 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         );
     }
     Ok(())
+}
+
+/// The deal of `--deal`.
+pub(crate) fn deal(a: &FrameArgs) -> Result<Deal> {
+    a.deal.parse().map_err(|e| anyhow!("--deal: {e}"))
 }
 
 /// The bytes of `--memory-budget SIZE`, as `render`, `serve` and `experiment` read it: one

@@ -4,19 +4,25 @@
 //! along that order. The curves are defined on the power-of-two cube enclosing the brick
 //! grid; cells outside the grid are skipped, so any `[nx, ny, nz]` works. Because a curve
 //! finishes a neighbourhood before leaving it, consecutive bricks are close together and the
-//! visible bricks of any view end up spread evenly over the ranks.
+//! visible bricks of any view end up spread evenly over the ranks. A volume read chunk by
+//! chunk from a store is dealt by chunks instead ([`chunks`]), so that each rank decodes
+//! only its own part of the store.
 
+pub mod chunks;
 pub mod hilbert;
 pub mod morton;
 pub mod setup;
 #[cfg(test)]
 mod test;
+#[cfg(test)]
+mod test_chunks;
 
 use std::fmt;
 use std::str::FromStr;
 
 use crate::brick::BrickId;
 pub use crate::comm::Rank;
+pub use chunks::Deal;
 
 /// A space-filling curve.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -69,6 +75,15 @@ pub enum DistributeError {
         /// The largest number of bricks.
         max_bricks: u64,
     },
+    /// The deal name is not known.
+    #[error("unknown deal {0:?}, expected \"auto\", \"curve\" or \"chunks\"")]
+    UnknownDeal(String),
+    /// A deal by chunks asked of a volume that is not read chunk by chunk.
+    #[error(
+        "{0}: a deal by chunks needs a Zarr level read chunk by chunk (one larger than \
+         the memory budget); this volume is not"
+    )]
+    NoChunks(String),
     /// The number of ranks is zero or does not fit a [`Rank`].
     #[error("got {0} ranks, expected 1..={max}", max = u32::MAX)]
     BadRanks(usize),
@@ -175,7 +190,8 @@ impl SfcOrder {
     }
 }
 
-/// Which rank owns which brick: bricks dealt round-robin along a curve.
+/// Which rank owns which brick: bricks dealt round-robin along a curve (the paper's deal),
+/// or by store chunks ([`BrickAssignment::by_chunks`], [`Deal`]).
 ///
 /// With `r` replicas (beyond the paper) every brick has `r` owners: its dealt rank and the
 /// ranks `k·ranks/r` further on. Which bricks are visible depends on the view, so with one
@@ -187,6 +203,7 @@ pub struct BrickAssignment {
     owners: Vec<Rank>,
     by_rank: Vec<Vec<BrickId>>,
     replicas: usize,
+    deal: Deal,
 }
 
 impl BrickAssignment {
@@ -240,7 +257,35 @@ impl BrickAssignment {
             owners,
             by_rank,
             replicas: 1,
+            deal: Deal::Curve,
         })
+    }
+
+    /// The assignment giving brick `i` to `owners[i]` (one per brick of `order`, each below
+    /// `ranks`), each rank's bricks listed in `order`, recorded as dealt by `deal`.
+    pub(crate) fn from_owners(
+        order: &SfcOrder,
+        owners: Vec<Rank>,
+        ranks: usize,
+        deal: Deal,
+    ) -> Self {
+        debug_assert_eq!(owners.len(), order.len());
+        let mut by_rank = vec![Vec::new(); ranks];
+        for &b in order.bricks() {
+            by_rank[owners[b.index()].index()].push(b);
+        }
+        BrickAssignment {
+            owners,
+            by_rank,
+            replicas: 1,
+            deal,
+        }
+    }
+
+    /// How the bricks were dealt: [`Deal::Curve`] or [`Deal::Chunks`].
+    #[must_use]
+    pub fn deal(&self) -> Deal {
+        self.deal
     }
 
     /// The same deal with `replicas` owners per brick (1 is the paper's).

@@ -14,7 +14,7 @@ use std::time::Duration;
 use crate::brick::{BrickError, BrickGrid, BrickId, BrickStore, ValueRange};
 use crate::comm::{CommError, Communicator};
 use crate::cull::OpacityBound;
-use crate::distribute::{BrickAssignment, Curve, DistributeError};
+use crate::distribute::{BrickAssignment, Curve, Deal, DistributeError};
 use crate::frame::{render_frame_on, FrameError, FrameOptions, FrameStats, RenderJob};
 use crate::render::{Camera, Image};
 use crate::volume::Volume;
@@ -69,6 +69,8 @@ pub struct DistributedRank<'c> {
     sent_before: Mutex<Vec<u64>>,
     /// Voxel bytes of this rank's private brick copies.
     copy_bytes: AtomicU64,
+    /// How the bricks whose ranges this rank measures are dealt.
+    deal: Deal,
 }
 
 impl<'c> DistributedRank<'c> {
@@ -79,7 +81,16 @@ impl<'c> DistributedRank<'c> {
             comm,
             sent_before: Mutex::new(Vec::new()),
             copy_bytes: AtomicU64::new(0),
+            deal: Deal::Auto,
         }
+    }
+
+    /// The same rank measuring the bricks dealt by `deal` ([`Deal::Auto`] by default; give
+    /// the job's frames the same [`crate::frame::RenderJob::deal`]).
+    #[must_use]
+    pub fn with_deal(mut self, deal: Deal) -> Self {
+        self.deal = deal;
+        self
     }
 
     /// The communicator.
@@ -91,6 +102,8 @@ impl<'c> DistributedRank<'c> {
     /// `volume`'s brick grid with every brick's value range: this rank measures the bricks
     /// dealt to it round-robin along `curve` and learns the others' from their ranks. Every
     /// rank must call it; the grid is the one [`BrickGrid::from_volume`] measures alone.
+    /// A volume read chunk by chunk (see [`DistributedRank::with_deal`]) is dealt by runs of
+    /// chunks of equal brick counts instead, so that each rank decodes only its part.
     ///
     /// # Errors
     /// [`SetupError`] for a bad brick size, a failed exchange, or ranges missing or garbled;
@@ -135,7 +148,15 @@ impl<'c> DistributedRank<'c> {
         budget: Option<u64>,
     ) -> Result<BrickGrid, SetupError> {
         let counts = BrickGrid::counts_for(volume.dims(), brick_size)?;
-        let owners = BrickAssignment::new(counts, curve, self.comm.size())?;
+        let ranks = self.comm.size();
+        // Every brick costs the same to measure, and no range is known yet to weigh by.
+        let owners =
+            match crate::distribute::chunks::chunk_shape_for(volume, brick_size, self.deal)? {
+                Some(chunk) => {
+                    BrickAssignment::by_chunks(counts, brick_size, chunk, curve, ranks, &|_| 1)?
+                }
+                None => BrickAssignment::new(counts, curve, ranks)?,
+            };
         let me = self.comm.rank();
         let mut grid = crate::store::measure_own(volume, brick_size, budget, &|id| {
             owners.owner(id) == Some(me)

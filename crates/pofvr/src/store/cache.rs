@@ -28,6 +28,7 @@ pub struct ReadCounts {
     bytes_read: AtomicU64,
     bricks_read: AtomicU64,
     cache_hits: AtomicU64,
+    chunks_decoded: AtomicU64,
     /// The cache's clock when this reader first asked: bricks used after it are its own.
     start: OnceLock<u64>,
 }
@@ -49,6 +50,12 @@ impl ReadCounts {
     #[must_use]
     pub fn cache_hits(&self) -> u64 {
         self.cache_hits.load(Ordering::Relaxed)
+    }
+
+    /// Zarr chunks decoded for the bricks read (0 for other sources).
+    #[must_use]
+    pub fn chunks_decoded(&self) -> u64 {
+        self.chunks_decoded.load(Ordering::Relaxed)
     }
 
     fn add(&self, bytes: u64, read: u64, hits: u64) {
@@ -246,9 +253,10 @@ impl BrickCache {
         // Read outside the lock: other threads keep hitting while this one waits on the
         // file. Two threads missing the same brick both read it (and both count it).
         let (origin, dims) = BrickCopy::apron_box(grid, id);
-        let (data, bytes) = self.source.read_box_counted(volume, origin, dims)?;
+        let (data, bytes, chunks) = self.source.read_box_decoding(volume, origin, dims)?;
         let copy = Arc::new(BrickCopy::from_parts(origin, dims, data));
         counts.add(bytes, 1, 0);
+        counts.chunks_decoded.fetch_add(chunks, Ordering::Relaxed);
         self.totals.add(bytes, 1, 0);
         let mut l = lru();
         if let Some(held) = l.touch(id) {

@@ -113,12 +113,27 @@ impl BrickSource {
         origin: [usize; 3],
         n: [usize; 3],
     ) -> Result<(VoxelData, u64), VolumeError> {
+        let (data, bytes, _) = self.read_box_decoding(volume, origin, n)?;
+        Ok((data, bytes))
+    }
+
+    /// [`BrickSource::read_box_counted`], with the number of Zarr chunks decoded for the box
+    /// (0 for a file or memory, and for chunks found in the chunk cache).
+    ///
+    /// # Errors
+    /// As [`BrickSource::read_box_counted`].
+    pub fn read_box_decoding(
+        &self,
+        volume: &Volume,
+        origin: [usize; 3],
+        n: [usize; 3],
+    ) -> Result<(VoxelData, u64, u64), VolumeError> {
         let plain = |d: VoxelData| {
             let b = d.len() as u64 * d.data_type().size() as u64;
-            (d, b)
+            (d, b, 0)
         };
         match self {
-            BrickSource::Zarr(z) => z.read_box(origin, n),
+            BrickSource::Zarr(z) => z.read_box_decoding(origin, n),
             BrickSource::Memory => Ok(plain(copy_from_memory(volume, origin, n))),
             BrickSource::File { file, path, spec } => {
                 let r = FileBox {

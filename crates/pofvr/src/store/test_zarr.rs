@@ -364,3 +364,92 @@ fn distributed_ranks_read_only_their_own_bricks_from_the_chunks() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn ranks_dealt_by_chunks_give_the_same_frame_and_decode_fewer_chunks() {
+    use crate::comm::LocalCommunicator;
+    use crate::distribute::setup::DistributedRank;
+    use crate::distribute::{Curve, Deal};
+    use crate::frame::{FrameOptions, RenderJob};
+    use crate::render::RenderSettings;
+    let vol = Phantom::Body.generate_dims([96, 80, 112]);
+    let tf = families::for_phantom(Phantom::Body);
+    let dir = tmp("deal");
+    // 16³ chunks of eight 8³ bricks: 6×5×7 chunks.
+    let path = write_array(&vol, &dir, "a", [16, 16, 16]);
+    // Under the volume (so the level is read by chunks) but room for every chunk: the
+    // decodes counted are each rank's chunks, not evictions.
+    let budget = volume_bytes(&vol) * 9 / 10;
+    let cam = camera(&vol, 30.0, 40);
+    let plain = RenderJob::new(
+        Volume::open(&path, None).unwrap(),
+        tf.clone(),
+        8,
+        RenderSettings::default(),
+    )
+    .unwrap();
+    let opts = FrameOptions {
+        cull: crate::cull::CullMode::None,
+        ..FrameOptions::default()
+    };
+    let (want, _) = crate::frame::render_frame(&plain, None, &cam, &opts).unwrap();
+    for n in [2, 3] {
+        let mut most = Vec::new();
+        for deal in [Deal::Curve, Deal::Auto, Deal::Chunks] {
+            let out = LocalCommunicator::run(n, |comm| {
+                let opened = Volume::open_with(
+                    &path,
+                    &OpenOptions {
+                        defer_above: Some(budget),
+                        ..OpenOptions::default()
+                    },
+                )
+                .unwrap();
+                let rank = DistributedRank::new(comm).with_deal(deal);
+                let grid = rank
+                    .measure_grid_within(&opened, 8, Curve::Hilbert, Some(budget))
+                    .unwrap();
+                let mut job =
+                    RenderJob::with_grid(opened, tf.clone(), grid, RenderSettings::default())
+                        .unwrap();
+                job.deal = deal;
+                rank.read_own_bricks(&mut job, Curve::Hilbert, 1, budget)
+                    .unwrap();
+                let dealt = job.assignment(Curve::Hilbert, n, 1).unwrap();
+                let frame = rank.frame(&job, None, &cam, &opts).unwrap();
+                (dealt, frame)
+            });
+            let what = format!("{deal} with {n} ranks");
+            let (image, stats) = out[0].1.clone().expect("rank 0 has the frame");
+            assert!(image.pixels() == want.pixels(), "pixels differ: {what}");
+            let dealt = if deal == Deal::Curve {
+                "curve"
+            } else {
+                "chunks"
+            };
+            assert_eq!(stats.deal, Some(dealt), "{what}");
+            for r in &stats.ranks {
+                assert_eq!(
+                    r.bricks_read + r.cache_hits,
+                    r.bricks_rendered as u64,
+                    "{what}"
+                );
+            }
+            // Threads of a rank missing one chunk at once may both decode it: the counts
+            // vary a little from run to run.
+            let busiest = stats.ranks.iter().map(|r| r.chunks_decoded).max().unwrap();
+            most.push((busiest, out[0].0.clone()));
+        }
+        let (curve, auto, chunks) = (&most[0], &most[1], &most[2]);
+        assert_eq!(auto.1, chunks.1, "{n} ranks: auto deals by chunks");
+        assert_ne!(curve.1, chunks.1, "{n} ranks");
+        // The busiest rank decodes at most 3/4 of the chunks it decodes under the paper's
+        // deal.
+        let (c, k) = (curve.0, chunks.0);
+        eprintln!(
+            "{n} ranks: the busiest rank decodes {c} chunks dealt along the curve, {k} by chunks"
+        );
+        assert!(k * 4 <= c * 3, "{n} ranks: {k} vs {c}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -127,22 +127,36 @@ impl ZarrSource {
         origin: [usize; 3],
         n: [usize; 3],
     ) -> Result<(VoxelData, u64), VolumeError> {
+        let (data, bytes, _) = self.read_box_decoding(origin, n)?;
+        Ok((data, bytes))
+    }
+
+    /// [`ZarrSource::read_box`], with the number of chunks decoded for the box (the chunk
+    /// cache's misses): what lets ranks sharing one source each count their own decodes.
+    ///
+    /// # Errors
+    /// As [`ZarrSource::read_box`].
+    pub fn read_box_decoding(
+        &self,
+        origin: [usize; 3],
+        n: [usize; 3],
+    ) -> Result<(VoxelData, u64, u64), VolumeError> {
         Ok(match self.level.data_type() {
             DataType::U8 => {
-                let (v, b) = self.assemble::<u8>(origin, n)?;
-                (VoxelData::U8(Voxels::owned(v)), b)
+                let (v, b, k) = self.assemble::<u8>(origin, n)?;
+                (VoxelData::U8(Voxels::owned(v)), b, k)
             }
             DataType::U16 => {
-                let (v, b) = self.assemble::<u16>(origin, n)?;
-                (VoxelData::U16(Voxels::owned(v)), b)
+                let (v, b, k) = self.assemble::<u16>(origin, n)?;
+                (VoxelData::U16(Voxels::owned(v)), b, k)
             }
             DataType::I16 => {
-                let (v, b) = self.assemble::<i16>(origin, n)?;
-                (VoxelData::I16(Voxels::owned(v)), b)
+                let (v, b, k) = self.assemble::<i16>(origin, n)?;
+                (VoxelData::I16(Voxels::owned(v)), b, k)
             }
             DataType::F32 => {
-                let (v, b) = self.assemble::<f32>(origin, n)?;
-                (VoxelData::F32(Voxels::owned(v)), b)
+                let (v, b, k) = self.assemble::<f32>(origin, n)?;
+                (VoxelData::F32(Voxels::owned(v)), b, k)
             }
         })
     }
@@ -152,18 +166,20 @@ impl ZarrSource {
         &self,
         origin: [usize; 3],
         n: [usize; 3],
-    ) -> Result<(Vec<T>, u64), VolumeError> {
+    ) -> Result<(Vec<T>, u64, u64), VolumeError> {
         let c = self.level.chunk_shape();
         let mut out = vec![T::zeroed(); n[0] * n[1] * n[2]];
         let mut bytes = 0;
+        let mut decoded = 0;
         // Chunks along each axis that the box meets.
         let span = |a: usize| origin[a] / c[a]..=(origin[a] + n[a] - 1) / c[a];
         for kz in span(2) {
             for ky in span(1) {
                 for kx in span(0) {
                     let k = [kx, ky, kz];
-                    let (chunk, b) = self.chunk(k)?;
+                    let (chunk, b, fresh) = self.chunk(k)?;
                     bytes += b;
+                    decoded += u64::from(fresh);
                     let src: &[T] = typed(&chunk);
                     // The intersection of the box and the chunk, in volume coordinates.
                     let lo: [usize; 3] = std::array::from_fn(|a| origin[a].max(k[a] * c[a]));
@@ -182,26 +198,27 @@ impl ZarrSource {
                 }
             }
         }
-        Ok((out, bytes))
+        Ok((out, bytes, decoded))
     }
 
     /// Chunk `k` from the cache, or decoded (outside the lock, so that other threads keep
-    /// hitting meanwhile) and cached; with the encoded bytes read for it.
-    fn chunk(&self, k: ChunkId) -> Result<(Arc<VoxelData>, u64), VolumeError> {
+    /// hitting meanwhile) and cached; with the encoded bytes read for it and whether it
+    /// was decoded.
+    fn chunk(&self, k: ChunkId) -> Result<(Arc<VoxelData>, u64, bool), VolumeError> {
         let lru = || self.lru.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(hit) = lru().touch(k) {
-            return Ok((hit, 0));
+            return Ok((hit, 0, false));
         }
         let (data, bytes) = self.level.read_chunk(k)?;
         let data = Arc::new(data);
         self.decoded.fetch_add(1, Ordering::Relaxed);
         let mut l = lru();
         if let Some(held) = l.touch(k) {
-            return Ok((held, bytes));
+            return Ok((held, bytes, true));
         }
         let evicted = l.insert(k, &data, self.chunk_budget());
         self.evictions.fetch_add(evicted, Ordering::Relaxed);
-        Ok((data, bytes))
+        Ok((data, bytes, true))
     }
 }
 
