@@ -229,6 +229,10 @@ impl From<FrameError> for Error {
             FrameError::Composite(e) => Error::Composite(e),
             FrameError::Comm(e) => Error::Comm(e),
             FrameError::Read(e) => Error::Volume(e),
+            FrameError::WholeLattice(why) => Error::Engine {
+                engine: "reference",
+                why,
+            },
         }
     }
 }

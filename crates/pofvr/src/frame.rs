@@ -594,6 +594,10 @@ pub enum FrameError {
     /// A brick could not be read from the brick store's file.
     #[error(transparent)]
     Read(#[from] crate::volume::VolumeError),
+    /// What samples the whole lattice (the exact cull) asked of a job whose volume is read
+    /// brick by brick under a memory budget ([`RenderJob::store`]).
+    #[error("{0}")]
+    WholeLattice(String),
 }
 
 impl FrameError {
@@ -646,6 +650,34 @@ impl RenderJob {
             weights: &self.tf.weights,
             shade: self.settings.shade,
         }
+    }
+}
+
+impl RenderJob {
+    /// Why `what` must not sample the whole lattice of this job's volume, or `None` when it
+    /// may: not when its voxels are not resident (a Zarr level larger than the memory
+    /// budget, decoded chunk by chunk for the bricks rendered), where silent zeros would be
+    /// a wrong image; nor when they are a file larger than the memory budget of
+    /// [`RenderJob::store`], where sampling its mapping would bring every page it touches
+    /// into memory (the whole file, for the exact cull and the whole-volume pass), past the
+    /// budget the caller asked for.
+    #[must_use]
+    pub fn whole_lattice_refusal(&self, what: &str) -> Option<String> {
+        if let Some(store) = &self.store {
+            if let crate::store::BrickSource::File { path, .. } = store.source() {
+                return Some(format!(
+                    "{what} samples the whole volume, and {} ({:.1} MB of voxels in {}) does not fit the memory budget of {:.1} MB: it would map the whole file, where the brick engine reads only the bricks it renders. Render with --cull none or verified, or raise or leave out --memory-budget",
+                    self.volume.source(),
+                    crate::store::volume_bytes(&self.volume) as f64 / 1e6,
+                    path.display(),
+                    store.budget() as f64 / 1e6,
+                ));
+            }
+        }
+        (!self.volume.is_resident()).then(|| format!(
+            "{what} samples the whole volume, and {} is a Zarr level larger than the memory budget whose chunks are decoded only for the bricks rendered: render with the brick engine and --cull none or verified, or raise --memory-budget",
+            self.volume.source()
+        ))
     }
 }
 
@@ -897,6 +929,11 @@ fn rank_frame(
     opts: &FrameOptions,
 ) -> Result<Option<(Image, FrameStats)>, FrameError> {
     check_options(bounds, opts)?;
+    if opts.cull == CullMode::Exact {
+        if let Some(why) = job.whole_lattice_refusal("the exact cull") {
+            return Err(FrameError::WholeLattice(why));
+        }
+    }
     let start = Instant::now();
     let me = comm.rank();
     let weights = look.weights;

@@ -464,37 +464,16 @@ impl Scene {
         Ok((look, opts))
     }
 
-    /// An error when `what` would sample the whole lattice of a volume whose voxels are
-    /// not resident (a Zarr level larger than the memory budget, decoded chunk by chunk
-    /// for the bricks rendered): silent zeros would be a wrong image. Also when they are a
-    /// file larger than the memory budget: sampling its mapping would bring every page it
-    /// touches into memory (the whole file, for the exact cull and the whole-volume pass),
-    /// past the budget the caller asked for.
+    /// An error when `what` would sample the whole lattice of a volume read brick by brick
+    /// under a memory budget ([`RenderJob::whole_lattice_refusal`]).
     fn whole_lattice(&self, what: &str) -> Result<()> {
-        if let Some(store) = &self.job.store {
-            if let crate::store::BrickSource::File { path, .. } = store.source() {
-                return Err(Error::Engine {
-                    engine: "reference",
-                    why: format!(
-                        "{what} samples the whole volume, and {} ({:.1} MB of voxels in {}) does not fit the memory budget of {:.1} MB: it would map the whole file, where the brick engine reads only the bricks it renders. Render with --cull none or verified, or raise or leave out --memory-budget",
-                        self.job.volume.source(),
-                        crate::store::volume_bytes(&self.job.volume) as f64 / 1e6,
-                        path.display(),
-                        store.budget() as f64 / 1e6,
-                    ),
-                });
-            }
+        match self.job.whole_lattice_refusal(what) {
+            Some(why) => Err(Error::Engine {
+                engine: "reference",
+                why,
+            }),
+            None => Ok(()),
         }
-        if self.job.volume.is_resident() {
-            return Ok(());
-        }
-        Err(Error::Engine {
-            engine: "reference",
-            why: format!(
-                "{what} samples the whole volume, and {} is a Zarr level larger than the memory budget whose chunks are decoded only for the bricks rendered: render with the brick engine and --cull none or verified, or raise --memory-budget",
-                self.job.volume.source()
-            ),
-        })
     }
 
     /// The bounds every mode is given: the scene's POFs, whatever the mode (the POF modes

@@ -526,3 +526,55 @@ fn the_proxy_stores_only_cells_some_basis_sees_and_equals_the_dense_definition()
         proxy.heap_bytes()
     );
 }
+
+#[test]
+fn the_library_frame_refuses_the_exact_cull_on_a_job_reading_through_a_store() {
+    use crate::frame::{render_frame, FrameError, FrameOptions, RenderJob};
+    use crate::render::RenderSettings;
+    let vol = Phantom::SheppLogan.generate(40);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let dir = tmp("exact");
+    let (path, spec) = write_raw(&vol, &dir, 0, Endian::Little);
+    let budget = super::volume_bytes(&vol) / 10;
+    let opened = raw::open(&path, &spec).unwrap();
+    let grid = super::grid_for(&opened, 8, Some(budget)).unwrap();
+    let store = super::cache_for(&opened, Some(budget)).unwrap();
+    let mut job = RenderJob::with_grid(opened, tf, grid, RenderSettings::default()).unwrap();
+    job.store = store;
+    assert!(job.store.is_some());
+    let cam = camera(&vol, 30.0, 32);
+    for ranks in [1, 3] {
+        let exact = FrameOptions {
+            cull: crate::cull::CullMode::Exact,
+            ranks,
+            ..FrameOptions::default()
+        };
+        let read = || job.store.as_ref().unwrap().summary().bricks_read;
+        let before = read();
+        let e = render_frame(&job, None, &cam, &exact).unwrap_err();
+        assert!(
+            matches!(e, FrameError::WholeLattice(_)),
+            "{ranks} ranks: {e}"
+        );
+        let e = e.to_string();
+        assert!(e.contains("the exact cull"), "{e}");
+        assert!(e.contains(&path.display().to_string()), "{e}");
+        assert!(e.contains("does not fit the memory budget"), "{e}");
+        // Nothing was read for it; a frame without the oracle reads through the store.
+        assert_eq!(read(), before);
+        let none = FrameOptions {
+            cull: crate::cull::CullMode::None,
+            ..exact
+        };
+        let (_, stats) = render_frame(&job, None, &cam, &none).unwrap();
+        assert!(stats.bricks_read + stats.cache_hits > 0);
+    }
+    // Without a store the oracle samples the mapped volume, as before.
+    job.store = None;
+    let exact = FrameOptions {
+        cull: crate::cull::CullMode::Exact,
+        ..FrameOptions::default()
+    };
+    assert!(render_frame(&job, None, &cam, &exact).is_ok());
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -453,3 +453,35 @@ fn ranks_dealt_by_chunks_give_the_same_frame_and_decode_fewer_chunks() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn the_library_frame_refuses_the_exact_cull_on_a_level_decoded_by_chunks() {
+    use crate::frame::{render_frame, FrameError, FrameOptions, RenderJob};
+    use crate::render::RenderSettings;
+    let vol = body();
+    let dir = tmp("exact");
+    let path = write_array(&vol, &dir, "a", [16, 16, 16]);
+    let opened = deferred(&path);
+    let grid = grid_for(&opened, 8, Some(4096)).unwrap();
+    let mut job = RenderJob::with_grid(
+        opened,
+        families::for_phantom(Phantom::Body),
+        grid,
+        RenderSettings::default(),
+    )
+    .unwrap();
+    job.store = cache_for(&job.volume, Some(4096)).unwrap();
+    let exact = FrameOptions {
+        cull: crate::cull::CullMode::Exact,
+        ..FrameOptions::default()
+    };
+    // Without the check the oracle would sample a lattice that is not in memory.
+    let e = render_frame(&job, None, &camera(&vol, 0.0, 24), &exact).unwrap_err();
+    assert!(matches!(e, FrameError::WholeLattice(_)), "{e}");
+    let e = e.to_string();
+    assert!(
+        e.contains("Zarr level") && e.contains("memory budget"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
