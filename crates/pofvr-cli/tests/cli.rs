@@ -106,9 +106,28 @@ fn stats_camera_and_raw_outputs_follow_the_contract() {
     assert!(o.status.success(), "{}", stderr(&o));
     let stats: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("s.json")).unwrap()).unwrap();
-    for key in ["frame_ms", "rays", "samples", "samples_per_second"] {
+    for key in [
+        "frame_ms",
+        "rays",
+        "pixel_rays",
+        "samples",
+        "samples_per_second",
+    ] {
         assert!(stats[key].is_number(), "{key} missing: {stats}");
     }
+    // The brick engine's rays are per brick fragment; the pixels' rays are counted apart.
+    let n = |k: &str| stats[k].as_u64().unwrap();
+    assert!(n("pixel_rays") > 0 && n("pixel_rays") <= 40 * 30, "{stats}");
+    assert!(n("rays") > n("pixel_rays"), "{stats}");
+    let e = stderr(&o);
+    assert!(
+        e.contains(&format!(
+            "{} pixel rays ({} rays cast, one per brick fragment)",
+            n("pixel_rays"),
+            n("rays")
+        )),
+        "{e}"
+    );
     for key in ["total", "empty", "non_empty", "culled", "visible"] {
         assert!(
             stats["bricks"][key].is_number(),

@@ -413,9 +413,14 @@ impl RenderJob {
 pub struct FrameStats {
     /// Wall time of the frame in milliseconds.
     pub frame_ms: f64,
-    /// Rays that met the volume (reference) or a rendered brick (brick path; a ray crossing
-    /// several bricks counts once per brick).
+    /// Rays cast: for the whole-volume and march engines one per pixel whose ray meets the
+    /// volume; for the brick engine one per brick fragment (a pixel's ray counts once for
+    /// every rendered brick it crosses), so more than the pixels. See
+    /// [`FrameStats::pixel_rays`].
     pub rays: u64,
+    /// Pixels whose ray meets the volume, whatever the engine: what `samples_per_ray` is
+    /// counted over.
+    pub pixel_rays: u64,
     /// Samples taken.
     pub samples: u64,
     /// `samples / frame time`.
@@ -622,6 +627,7 @@ impl FrameStats {
         FrameStats {
             frame_ms: seconds * 1e3,
             rays: st.rays,
+            pixel_rays: st.rays,
             samples: st.samples,
             samples_per_second: sps,
             threads: rayon::current_num_threads(),
@@ -1219,7 +1225,8 @@ fn rank_frame(
     };
     let mut stats = FrameStats::from_rays(total, start.elapsed().as_secs_f64(), "bricks");
     // Counted after the frame's time is taken: the brick path never needs it.
-    stats.samples_per_ray = total.samples as f64 / rays_meeting(&job.volume, camera).max(1) as f64;
+    stats.pixel_rays = rays_meeting(&job.volume, camera);
+    stats.samples_per_ray = total.samples as f64 / stats.pixel_rays.max(1) as f64;
     let n_visible = visible.iter().filter(|v| **v).count();
     stats.cull = Some(opts.cull);
     stats.verified = verify;

@@ -268,12 +268,12 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         bail!("the root rendered no frame");
     };
     eprintln!(
-        "{}: {}×{} in {:.1} ms, {} rays, {:.1} M samples ({:.0} M samples/s), total {:.2} s",
+        "{}: {}×{} in {:.1} ms, {}, {:.1} M samples ({:.0} M samples/s), total {:.2} s",
         frame_path(&a.out, 0, a.frames).display(),
         cam.width,
         cam.height,
         stats.frame_ms,
-        stats.rays,
+        rays_text(stats),
         stats.samples as f64 / 1e6,
         stats.samples_per_second / 1e6,
         t0.elapsed().as_secs_f64()
@@ -337,6 +337,19 @@ pub(crate) fn run_with(a: &RenderArgs, ui: &Ui, backend: &dyn Backend) -> Result
         );
     }
     Ok(())
+}
+
+/// The rays of a frame in words: pixels' rays, and for the brick engine the rays it cast,
+/// one per brick fragment (`--stats` `pixel_rays` and `rays`).
+fn rays_text(stats: &FrameStats) -> String {
+    if stats.rays == stats.pixel_rays {
+        format!("{} pixel rays", stats.pixel_rays)
+    } else {
+        format!(
+            "{} pixel rays ({} rays cast, one per brick fragment)",
+            stats.pixel_rays, stats.rays
+        )
+    }
 }
 
 /// The deal of `--deal`.

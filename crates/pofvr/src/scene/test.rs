@@ -508,3 +508,38 @@ fn a_cancelled_pof_build_stops_between_bricks() {
         .build_pofs_cancellable(&small_build(), &|_, _| {}, &quiet)
         .is_ok());
 }
+
+#[test]
+fn stats_count_pixel_rays_and_brick_fragment_rays_apart() {
+    let s = Scene::builder(head(40).0, head(40).1)
+        .brick_size(8)
+        .build()
+        .unwrap();
+    let cam = camera(&s, 30.0);
+    let base = FrameRequest::new(&cam);
+    let march = s.render(&base.clone().engine(Engine::March)).unwrap().stats;
+    let whole = s.render_reference(&base).unwrap().stats;
+    // One ray per pixel that meets the volume, for the engines that walk the whole volume.
+    assert!(march.pixel_rays > 0 && march.pixel_rays <= 40 * 32);
+    assert_eq!(march.rays, march.pixel_rays);
+    assert_eq!(
+        (whole.rays, whole.pixel_rays),
+        (march.rays, march.pixel_rays)
+    );
+    for ranks in [1, 3] {
+        let bricks = s
+            .render(&base.clone().engine(Engine::Bricks).ranks(ranks))
+            .unwrap()
+            .stats;
+        // The same pixels; the brick engine casts one ray per brick fragment, more of them.
+        assert_eq!(bricks.pixel_rays, march.pixel_rays, "{ranks} ranks");
+        assert!(
+            bricks.rays > 2 * bricks.pixel_rays,
+            "{ranks} ranks: {bricks:?}"
+        );
+        let per_rank: u64 = bricks.ranks.iter().map(|r| r.rays).sum();
+        assert_eq!(per_rank, bricks.rays);
+        let spr = bricks.samples as f64 / bricks.pixel_rays as f64;
+        assert!((bricks.samples_per_ray - spr).abs() < 1e-9);
+    }
+}
