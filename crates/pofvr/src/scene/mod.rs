@@ -34,7 +34,7 @@ use crate::frame::{self, FrameOptions, Look, RenderJob};
 use crate::pof::PofTable;
 use crate::render::camera::GIVEN_CAMERA;
 use crate::render::{CellRanges, SampledTf, TransferFunction};
-use crate::volume::{Volume, VoxelData, Voxels};
+use crate::volume::Volume;
 
 /// One volume ready to render: see the [module](self) and [`Scene::builder`].
 pub struct Scene {
@@ -77,16 +77,6 @@ fn check_weights(family: &TransferFunction, weights: &[f32]) -> Result<()> {
         return Err(Error::Weight { index, got: *got });
     }
     Ok(())
-}
-
-/// An owned copy of `data`.
-fn copy_voxels(data: &VoxelData) -> VoxelData {
-    match data {
-        VoxelData::U8(x) => VoxelData::U8(Voxels::owned(x.as_slice().to_vec())),
-        VoxelData::U16(x) => VoxelData::U16(Voxels::owned(x.as_slice().to_vec())),
-        VoxelData::I16(x) => VoxelData::I16(Voxels::owned(x.as_slice().to_vec())),
-        VoxelData::F32(x) => VoxelData::F32(Voxels::owned(x.as_slice().to_vec())),
-    }
 }
 
 impl Scene {
@@ -380,8 +370,8 @@ impl Scene {
     /// A scene of the same volume, bricks and settings rendered with `family`: its POFs
     /// are kept when `family` has the same bases (names and points; weights and colour are
     /// free), and dropped otherwise, since they bound the old bases' opacity. The bricks'
-    /// value ranges and the measured cell ranges are reused; the voxels are copied, since
-    /// a scene owns its volume. Private brick copies ([`RenderJob::bricks`]) are not
+    /// value ranges and the measured cell ranges are reused, and the voxels shared, not
+    /// copied ([`Volume::share`]). Private brick copies ([`RenderJob::bricks`]) are not
     /// carried over: the new scene samples the volume.
     ///
     /// # Errors
@@ -390,13 +380,9 @@ impl Scene {
         check_weights(&family, &family.weights)?;
         let same_bases = family.bases.len() == self.job.tf.bases.len()
             && family.bases_fingerprint() == self.job.tf.bases_fingerprint();
-        let v = &self.job.volume;
-        // A mapped volume is shared, not copied: under a memory budget a copy would bring
-        // the whole file into memory.
-        let volume = match v.share() {
-            Some(shared) => shared,
-            None => Volume::new(v.dims(), v.spacing(), copy_voxels(v.data()), v.source())?,
-        };
+        // Shared, not copied: a second copy of a large volume would double the memory, and
+        // under a memory budget a copy of a mapped file would bring it all into memory.
+        let volume = self.job.volume.share();
         let mut job =
             RenderJob::with_grid(volume, family, self.job.grid.clone(), self.job.settings)?;
         job.store = self.job.store.clone();

@@ -472,6 +472,11 @@ fn a_scene_with_another_family_renders_as_one_built_with_it_and_keeps_matching_p
             assert_eq!(got.pixels(), fresh.render(&req).unwrap().image.pixels());
         }
     }
+    // The generated (owned) voxels are shared with the new scenes, not copied.
+    let voxels = |s: &Scene| crate::with_voxels!(s.volume().data(), v => v.as_ptr().cast::<u8>());
+    assert!(!s.volume().data().is_mapped());
+    assert!(std::ptr::eq(voxels(&s), voxels(&r)));
+    assert!(std::ptr::eq(voxels(&s), voxels(&q)));
     let mut bad = tf;
     bad.weights = vec![1.0];
     assert!(matches!(s.with_family(bad), Err(Error::WeightCount { .. })));

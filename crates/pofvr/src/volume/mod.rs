@@ -425,24 +425,24 @@ impl Volume {
         self.zarr.as_ref()
     }
 
-    /// A second handle on a memory-mapped volume, sharing the map (no copy), its file
-    /// included; `None` when the voxels are owned.
+    /// A second handle on the volume, sharing its voxels (owned, mapped or borrowed: no
+    /// copy), its file and its Zarr level.
     #[must_use]
-    pub fn share(&self) -> Option<Volume> {
+    pub fn share(&self) -> Volume {
         let data = match &self.data {
-            VoxelData::U8(x) => VoxelData::U8(x.share()?),
-            VoxelData::U16(x) => VoxelData::U16(x.share()?),
-            VoxelData::I16(x) => VoxelData::I16(x.share()?),
-            VoxelData::F32(x) => VoxelData::F32(x.share()?),
+            VoxelData::U8(x) => VoxelData::U8(x.share()),
+            VoxelData::U16(x) => VoxelData::U16(x.share()),
+            VoxelData::I16(x) => VoxelData::I16(x.share()),
+            VoxelData::F32(x) => VoxelData::F32(x.share()),
         };
-        Some(Volume {
+        Volume {
             dims: self.dims,
             spacing: self.spacing,
             data,
             source: self.source.clone(),
             raw_file: self.raw_file.clone(),
             zarr: self.zarr.clone(),
-        })
+        }
     }
 
     /// The stored voxels.

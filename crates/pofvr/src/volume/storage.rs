@@ -12,7 +12,8 @@ pub struct Voxels<T: Voxel> {
 }
 
 enum Repr<T: 'static> {
-    Owned(Vec<T>),
+    /// Shared, so that a second handle ([`Voxels::share`]) costs no copy.
+    Owned(Arc<Vec<T>>),
     Mapped {
         map: Arc<Mmap>,
         offset: usize,
@@ -20,9 +21,7 @@ enum Repr<T: 'static> {
     },
     /// Voxels that are not in memory: a Zarr level larger than the memory budget, whose
     /// chunks a brick store decodes on demand ([`Voxels::deferred`]).
-    Deferred {
-        len: usize,
-    },
+    Deferred { len: usize },
     /// Memory someone else owns, valid while `_owner` lives ([`Voxels::borrowed`]).
     Borrowed {
         _owner: Arc<dyn Send + Sync>,
@@ -45,7 +44,7 @@ impl<T: Voxel> Voxels<T> {
     #[must_use]
     pub fn owned(v: Vec<T>) -> Self {
         Voxels {
-            repr: Repr::Owned(v),
+            repr: Repr::Owned(Arc::new(v)),
         }
     }
 
@@ -122,7 +121,7 @@ impl<T: Voxel> Voxels<T> {
     #[must_use]
     pub fn as_slice(&self) -> &[T] {
         match &self.repr {
-            Repr::Owned(v) => v,
+            Repr::Owned(v) => v.as_slice(),
             Repr::Deferred { len } => deferred_access(*len),
             Repr::Borrowed { data, .. } => data,
             Repr::Mapped { map, offset, len } => {
@@ -147,21 +146,27 @@ impl<T: Voxel> Voxels<T> {
         self.len() == 0
     }
 
-    /// A second handle on memory-mapped (or deferred) voxels, sharing the map (no copy);
-    /// `None` for owned or borrowed voxels.
+    /// A second handle on the same voxels, without copying them: owned voxels and a memory
+    /// map are shared, borrowed memory keeps its owner alive once more.
     #[must_use]
-    pub fn share(&self) -> Option<Self> {
-        match &self.repr {
-            Repr::Deferred { len } => Some(Voxels::deferred(*len)),
-            Repr::Mapped { map, offset, len } => Some(Voxels {
-                repr: Repr::Mapped {
-                    map: Arc::clone(map),
-                    offset: *offset,
-                    len: *len,
-                },
-            }),
-            _ => None,
-        }
+    pub fn share(&self) -> Self {
+        let repr = match &self.repr {
+            Repr::Owned(v) => Repr::Owned(Arc::clone(v)),
+            Repr::Deferred { len } => Repr::Deferred { len: *len },
+            Repr::Mapped { map, offset, len } => Repr::Mapped {
+                map: Arc::clone(map),
+                offset: *offset,
+                len: *len,
+            },
+            Repr::Borrowed {
+                _owner: owner,
+                data,
+            } => Repr::Borrowed {
+                _owner: Arc::clone(owner),
+                data,
+            },
+        };
+        Voxels { repr }
     }
 
     /// True when served from a memory map.
