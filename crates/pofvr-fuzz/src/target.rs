@@ -247,31 +247,15 @@ fn camera(d: &[u8]) -> bool {
 }
 
 fn query(d: &[u8]) -> bool {
-    use pofvr_web::frame_adapter::{CullMode, FrameOptions, Look};
+    use pofvr_web::frame_adapter::CullMode;
     use pofvr_web::params::{self, FrameParams};
     // As the server decodes it (axum's Query is serde_urlencoded).
     let Ok(pairs) = serde_urlencoded::from_bytes::<Vec<(String, String)>>(d) else {
         return false;
     };
-    let defaults = FrameParams {
-        azimuth: 30.0,
-        elevation: 20.0,
-        zoom: 1.0,
-        width: 512,
-        height: 512,
-        projection: pofvr::render::Projection::Orthographic,
-        look: Look {
-            weights: vec![1.0, 1.0],
-            shade: false,
-        },
-        options: FrameOptions {
-            cull: CullMode::None,
-            ..FrameOptions::default()
-        },
-        overlay: false,
-        client: "default".into(),
-        seq: 0,
-    };
+    // The server's own defaults (a two-basis family), so that the target cannot drift
+    // from them.
+    let defaults = FrameParams::new(vec![1.0, 1.0], CullMode::None);
     let Ok(p) = params::parse(&pairs, &defaults) else {
         return false;
     };

@@ -72,7 +72,7 @@ use pofvr::render::{Camera, Projection};
 use pofvr::Scene;
 use serde::Serialize;
 
-use frame_adapter::{CullMode, FrameOptions, FrameStats, Look};
+use frame_adapter::{CullMode, FrameOptions, FrameStats};
 use params::FrameParams;
 pub use scheduler::SchedulerStats;
 use scheduler::{Refusal, Scheduler};
@@ -138,27 +138,12 @@ impl Viewer {
     /// A viewer of `scene`; `source` names the volume on the page.
     #[must_use]
     pub fn new(scene: Arc<Scene>, source: &str, options: &ViewerOptions) -> Self {
-        let defaults = FrameParams {
-            azimuth: 30.0,
-            elevation: 20.0,
-            zoom: 1.0,
-            width: 512,
-            height: 512,
-            projection: Projection::Orthographic,
-            look: Look {
-                weights: scene.default_weights().to_vec(),
-                shade: false,
-            },
-            // As `pofvr render`: POF culling when POFs are given, otherwise none.
-            options: FrameOptions {
-                cull: scene.default_cull().mode(),
-                ranks: options.ranks.max(1),
-                ..FrameOptions::default()
-            },
-            overlay: false,
-            client: "default".into(),
-            seq: 0,
-        };
+        // As `pofvr render`: POF culling when POFs are given, otherwise none.
+        let mut defaults = FrameParams::new(
+            scene.default_weights().to_vec(),
+            scene.default_cull().mode(),
+        );
+        defaults.options.ranks = options.ranks.max(1);
         Viewer {
             slot: tf_api::SceneSlot::new(scene),
             source: source.to_string(),

@@ -46,6 +46,35 @@ pub struct FrameParams {
     pub seq: u64,
 }
 
+impl FrameParams {
+    /// The viewer's defaults for a family whose default weights are `weights`, culled by
+    /// `cull`: a 512² orthographic view at azimuth 30°, elevation 20°, zoom 1, unshaded,
+    /// no overlay, client `default`, one rank. What a query leaves out takes these values
+    /// ([`parse`]); the server, the tests and the fuzz target all start from here.
+    #[must_use]
+    pub fn new(weights: Vec<f32>, cull: CullMode) -> Self {
+        FrameParams {
+            azimuth: 30.0,
+            elevation: 20.0,
+            zoom: 1.0,
+            width: 512,
+            height: 512,
+            projection: Projection::Orthographic,
+            look: Look {
+                weights,
+                shade: false,
+            },
+            options: FrameOptions {
+                cull,
+                ..FrameOptions::default()
+            },
+            overlay: false,
+            client: "default".into(),
+            seq: 0,
+        }
+    }
+}
+
 /// Parses `pairs` (the decoded query) for a family of `basis_count` bases; absent
 /// parameters take `defaults`' values.
 ///
@@ -164,25 +193,7 @@ mod tests {
     use super::*;
 
     fn defaults() -> FrameParams {
-        FrameParams {
-            azimuth: 30.0,
-            elevation: 20.0,
-            zoom: 1.0,
-            width: 512,
-            height: 512,
-            projection: Projection::Orthographic,
-            look: Look {
-                weights: vec![1.0, 1.0],
-                shade: false,
-            },
-            options: FrameOptions {
-                cull: CullMode::None,
-                ..FrameOptions::default()
-            },
-            overlay: false,
-            client: "default".into(),
-            seq: 0,
-        }
+        FrameParams::new(vec![1.0, 1.0], CullMode::None)
     }
 
     fn q(s: &str) -> Vec<(String, String)> {
