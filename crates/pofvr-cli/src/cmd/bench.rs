@@ -279,7 +279,7 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         pofs.core_lengths()
     );
     println!(
-        "{:<8} {:>5} {:>8} {:>10} {:>9} {:>8} {:>8} {:>9} {:>8}",
+        "{:<8} {:>5} {:>8} {:>10} {:>9} {:>8} {:>8} {:>9} {:>8} {:>9} {:>9} {:>8} {:>10}",
         "mode",
         "ranks",
         "replicas",
@@ -288,11 +288,15 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
         "cull %",
         "culled",
         "culled %",
-        "balance"
+        "balance",
+        "verify ms",
+        "repair ms",
+        "repaired",
+        "samples"
     );
     for c in &result.cases {
         println!(
-            "{:<8} {:>5} {:>8} {:>10.1} {:>9.2} {:>8.2} {:>8} {:>9.1} {:>8.3}",
+            "{:<8} {:>5} {:>8} {:>10.1} {:>9.2} {:>8.2} {:>8} {:>9.1} {:>8.3} {:>9.2} {:>9.2} {:>8} {:>10}",
             c.mode,
             c.ranks,
             c.replicas,
@@ -301,7 +305,11 @@ pub(crate) fn cull(a: &BenchCullArgs, ui: &Ui) -> Result<()> {
             100.0 * c.cull_share_of_frame,
             c.culled,
             100.0 * c.culled_fraction,
-            c.load_balance_max_over_mean_samples
+            c.load_balance_max_over_mean_samples,
+            c.max_verify_ms,
+            c.max_repair_ms,
+            c.repaired,
+            c.samples
         );
     }
     if let Some(x) = speedup {

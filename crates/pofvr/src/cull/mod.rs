@@ -18,7 +18,7 @@
 //!   keeps the buffers ([`CullScratch`]).
 //! - [`ideal`] and [`range_bound`]: other bounds, for diagnostics and tests.
 //! - Predict, verify, repair ([`CullMode::Verified`]): a [`Predictor`] guesses ([`proxy`]
-//!   marches a low-resolution copy of the volume; [`predict`] holds the others) and
+//!   marches a low-resolution copy of the volume, [`proxy_march`] on two levels; [`predict`] holds the others) and
 //!   [`verify`] tests the guess on the opacity tile owners blend, so a wrong guess costs a
 //!   repair, never a pixel.
 
@@ -32,6 +32,9 @@ mod mode;
 mod order;
 pub mod predict;
 pub mod proxy;
+pub mod proxy_march;
+#[cfg(test)]
+mod proxy_march_test;
 pub mod range_bound;
 mod scratch;
 mod spans;

@@ -30,6 +30,7 @@ use crate::render::{Camera, IndexRay, PixelRect, SampledTf};
 use crate::volume::{Volume, Voxel};
 use crate::with_voxels;
 
+use super::proxy_march::Extinction;
 use super::FrameBricks;
 
 /// Edge of a proxy cell in voxels, for volumes of at most [`FINE_PROXY_VOXELS`] voxels: fine
@@ -73,29 +74,52 @@ pub const CORRELATION_LENGTH: f32 = 16.0;
 
 /// The optical depth a ray must reach in the proxy, in multiples of the threshold's
 /// (`−ln(1 − threshold)`), before the bricks behind are predicted hidden (after
-/// [`PROXY_MARGIN_LENGTH`] more): the threshold's own, the margin being a length.
+/// [`PROXY_MARGIN`] more): the threshold's own, the margin being a length.
 pub const PROXY_DEPTH_FACTOR: f32 = 1.0;
 
-/// How far (in ray `t`, the smallest voxel spacing) beyond the depth where the proxy says a
-/// ray reaches the threshold the bricks are still taken as visible.
+/// How far (in world units: millimetres for medical volumes) beyond the depth where the
+/// proxy says a ray reaches the threshold the bricks are still taken as visible
+/// ([`margin_length`] turns it into ray `t`).
 ///
 /// Why a length and not a factor on the optical depth: a brick is hidden only if *every*
 /// ray over it is opaque in front of it, and what the proxy gets wrong is *where* a ray
 /// meets the surface that stops it (a surface placed within a cell, a single ray slipping
-/// down a sulcus), a matter of voxels whatever the material. A factor on the depth gave an
+/// down a sulcus), a matter of distance whatever the material. A factor on the depth gave an
 /// opaque tissue (the MRI's grey matter, 0.7 per voxel) a margin of 2 voxels and a faint
 /// one (the CTs' soft tissue, 0.13 per voxel) of 12: the MRI needed more, the CTs were
-/// over-cautious. Measured (docs/culling.md, round 2): factor 1 plus 4 voxels renders ≤ 2
-/// points over the oracle with ≤ 5 % repairs on all four catalogue families; 8 voxels
-/// renders more, factor 1.5 without a length renders more on three of them.
-pub const PROXY_MARGIN_LENGTH: f32 = 4.0;
+/// over-cautious.
+///
+/// Why in world units and not voxels: the gaps a ray slips through (sulci, skin folds, the
+/// spaces between ribs) have an anatomical size, not a size in voxels. Counted in voxels of
+/// the smallest spacing (4, before), the margin was 2 mm on the 0.5 mm MRI, 6 mm on the head
+/// CT's 1.5 mm slices and 0.8 mm on a CT of 0.19 mm slices: the coarse CT over-cautious, the
+/// fine one hardly protected. Measured (docs/culling.md, round 3, 24 views): 2 mm renders
+/// ≤ 1.9 points over the oracle with ≤ 3.9 % repairs on all four catalogue families (the
+/// head CT 1.42 points instead of 2.01; the MRI, at 0.5 mm, as before); 1.5 mm repairs
+/// 4.7–5.1 % on the MRI, 3 mm renders 2.35 points over on it. The CTs barely change between
+/// 1.5 and 4 mm.
+pub const PROXY_MARGIN: f32 = 2.0;
+
+/// [`PROXY_MARGIN`] in ray `t` (units of the smallest voxel spacing `unit`), kept between 1
+/// and 16 voxels: below one the proxy cannot place a surface at all, and a volume whose
+/// spacing is not in millimetres (metres, or 1 for unknown) must not make the margin a
+/// brick deep or vanish.
+#[must_use]
+pub fn margin_length(unit: f32) -> f32 {
+    let t = PROXY_MARGIN / unit;
+    if t.is_finite() {
+        t.clamp(1.0, 16.0)
+    } else {
+        16.0
+    }
+}
 
 /// Pixels between the sample rays of the prediction, in x and in y: a quarter of the rays
 /// predicts within a few bricks of every ray (docs/culling.md) at a quarter of the cost.
 pub const PREDICT_STRIDE: u32 = 2;
 
 /// Weights and the effective extinction of every cell at them.
-type Cached = (Vec<f32>, Arc<Vec<f32>>);
+type Cached = (Vec<f32>, Arc<Extinction>);
 
 /// A cell's slot when every basis is transparent over its voxels (air, or tissue outside
 /// the family): it has no groups stored, every group's extinction is zero.
@@ -272,10 +296,10 @@ impl Proxy {
         self.edge
     }
 
-    /// The effective extinction of every cell at `weights`, computed once per weights
-    /// ([`Proxy::extinction`]).
+    /// The effective extinction of every cell at `weights` ([`Proxy::extinction`]) with
+    /// its blocks for the march, computed once per weights.
     #[must_use]
-    pub fn extinction_at(&self, weights: &[f32]) -> Arc<Vec<f32>> {
+    pub fn extinction_at(&self, weights: &[f32]) -> Arc<Extinction> {
         let mut cache = self
             .cache
             .lock()
@@ -287,7 +311,7 @@ impl Proxy {
         }
         // Computed under the lock: the other ranks of the frame wait for it rather than
         // compute it again.
-        let ext = Arc::new(self.extinction(weights));
+        let ext = Arc::new(Extinction::new(self.extinction(weights), self.cells));
         *cache = Some((weights.to_vec(), Arc::clone(&ext)));
         ext
     }
@@ -326,82 +350,27 @@ impl Proxy {
     }
 
     /// The `t` at which `ray`'s optical depth through the cells of `ext` reaches `depth`;
-    /// infinite when it never does.
+    /// infinite when it never does ([`Extinction::termination`], which skips the blocks
+    /// of transparent cells).
     #[must_use]
-    pub fn termination(&self, ext: &[f32], ray: &IndexRay, depth: f32) -> f32 {
-        let hi = self.cells.map(|c| (c * self.edge) as f32);
-        let (mut t0, mut t1) = (0f32, f32::INFINITY);
-        for ((&o, &d), &hi) in ray.o.iter().zip(&ray.d).zip(&hi) {
-            if d == 0.0 {
-                if o < 0.0 || o >= hi {
-                    return f32::INFINITY;
-                }
-                continue;
-            }
-            let (ta, tb) = ((0.0 - o) / d, (hi - o) / d);
-            t0 = t0.max(ta.min(tb));
-            t1 = t1.min(ta.max(tb));
-        }
-        if t0 >= t1 {
-            return f32::INFINITY;
-        }
-        let edge = self.edge as f32;
-        let p = |a: usize, t: f32| ray.o[a] + t * ray.d[a];
-        let mut cell: [i64; 3] = std::array::from_fn(|a| {
-            let x = (p(a, t0 + (t1 - t0) * 1e-6) / edge).floor() as i64;
-            x.clamp(0, self.cells[a] as i64 - 1)
-        });
-        let step: [i64; 3] = std::array::from_fn(|a| {
-            if ray.d[a] > 0.0 {
-                1
-            } else if ray.d[a] < 0.0 {
-                -1
-            } else {
-                0
-            }
-        });
-        // The t of the next cell face crossed along each axis.
-        let next = |a: usize, c: i64| -> f32 {
-            if step[a] == 0 {
-                return f32::INFINITY;
-            }
-            let face = if step[a] > 0 { c + 1 } else { c } as f32 * edge;
-            (face - ray.o[a]) / ray.d[a]
-        };
-        let mut t_next: [f32; 3] = std::array::from_fn(|a| next(a, cell[a]));
-        let (mut t, mut acc) = (t0, 0f32);
-        let [nx, ny, _] = self.cells;
-        loop {
-            let i = (cell[2] as usize * ny + cell[1] as usize) * nx + cell[0] as usize;
-            let a = (0..3)
-                .min_by(|&x, &y| t_next[x].total_cmp(&t_next[y]))
-                .unwrap_or(0);
-            let out = t_next[a].min(t1);
-            let e = ext[i];
-            let add = e * (out - t).max(0.0);
-            if acc + add >= depth && e > 0.0 {
-                return t + (depth - acc) / e;
-            }
-            acc += add;
-            t = out;
-            if t >= t1 {
-                return f32::INFINITY;
-            }
-            cell[a] += step[a];
-            if cell[a] < 0 || cell[a] >= self.cells[a] as i64 {
-                return f32::INFINITY;
-            }
-            t_next[a] = next(a, cell[a]);
-        }
+    pub fn termination(&self, ext: &Extinction, ray: &IndexRay, depth: f32) -> f32 {
+        ext.termination(self.edge, ray, depth)
     }
 
-    /// Where the prediction takes `ray` to end at `threshold`: where its optical depth through
-    /// the cells of `ext` reaches [`PROXY_DEPTH_FACTOR`] times the threshold's, plus
-    /// [`PROXY_MARGIN_LENGTH`]; infinite when it never does.
+    /// Where the prediction takes `ray` to end at `threshold` in a volume of smallest spacing
+    /// `unit`: where its optical depth through the cells of `ext` reaches
+    /// [`PROXY_DEPTH_FACTOR`] times the threshold's, plus [`margin_length`]; infinite when
+    /// it never does.
     #[must_use]
-    pub fn predicted_end(&self, ext: &[f32], ray: &IndexRay, threshold: f32) -> f32 {
+    pub fn predicted_end(
+        &self,
+        ext: &Extinction,
+        ray: &IndexRay,
+        threshold: f32,
+        unit: f32,
+    ) -> f32 {
         let depth = -(1.0 - threshold.min(0.999_999)).ln() * PROXY_DEPTH_FACTOR;
-        self.termination(ext, ray, depth) + PROXY_MARGIN_LENGTH
+        self.termination(ext, ray, depth) + margin_length(unit)
     }
 
     /// Predicts which bricks over `tile` are hidden at `threshold`: the sample rays (every
@@ -453,8 +422,9 @@ impl Proxy {
             })
             .collect();
         let ends: Vec<OnceLock<f32>> = (0..nx * ny).map(|_| OnceLock::new()).collect();
+        let unit = volume.unit();
         let end_of =
-            |k: usize| *ends[k].get_or_init(|| self.predicted_end(&ext, &rays[k], threshold));
+            |k: usize| *ends[k].get_or_init(|| self.predicted_end(&ext, &rays[k], threshold, unit));
         // The sample indices inside [lo, hi) of an axis starting at `s0`.
         let range = |lo: u32, hi: u32, s0: u32, n: usize| -> std::ops::Range<usize> {
             let a = (lo.max(s0) - s0).div_ceil(s) as usize;

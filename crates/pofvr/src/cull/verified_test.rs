@@ -1,6 +1,7 @@
 //! Predict, verify, repair: the threshold rule for every predictor, good or deliberately
 //! bad; one round of repair; the same frame for any rank count.
 
+use super::proxy_march::Extinction;
 use super::range_bound::RangeBound;
 use super::test::assert_conservative;
 use super::*;
@@ -305,7 +306,8 @@ fn proxy_termination_is_where_a_uniform_slab_reaches_the_depth() {
     let j = job(32, &[1.0, 1.0]);
     let proxy = Proxy::new(&j.volume, &j.sampled);
     let n: usize = proxy.cells().iter().product();
-    let ext = vec![0.5f32; n];
+    let ext = Extinction::new(vec![0.5f32; n], proxy.cells());
+    let air = Extinction::new(vec![0.0f32; n], proxy.cells());
     // Along +x from outside: enters at t = 2, reaches depth 1 after 2 more.
     let ray = crate::render::IndexRay {
         o: [-2.0, 5.0, 5.0],
@@ -314,14 +316,21 @@ fn proxy_termination_is_where_a_uniform_slab_reaches_the_depth() {
     };
     let t = proxy.termination(&ext, &ray, 1.0);
     assert!((t - 4.0).abs() < 1e-4, "{t}");
-    assert!(proxy.termination(&vec![0.0; n], &ray, 1.0).is_infinite());
+    assert!(proxy.termination(&air, &ray, 1.0).is_infinite());
     // The prediction: where the threshold's depth is reached, then the margin's length.
     let th = 0.95f32;
     let d = -(1.0 - th).ln() * proxy::PROXY_DEPTH_FACTOR;
-    let end = proxy.predicted_end(&ext, &ray, th);
-    let want = 2.0 + d / 0.5 + proxy::PROXY_MARGIN_LENGTH;
+    let end = proxy.predicted_end(&ext, &ray, th, 0.5);
+    // The margin, 2 mm, is 4 voxels of 0.5 mm.
+    let want = 2.0 + d / 0.5 + 4.0;
     assert!((end - want).abs() < 1e-3, "{end}, want {want}");
-    assert!(proxy.predicted_end(&vec![0.0; n], &ray, th).is_infinite());
+    assert!(proxy.predicted_end(&air, &ray, th, 0.5).is_infinite());
+    // In world units: 2 mm is 1.5 voxels of 4/3 mm; a spacing in metres or of unknown
+    // units keeps the margin between one voxel and a brick.
+    assert!((proxy::margin_length(4.0 / 3.0) - 1.5).abs() < 1e-6);
+    assert_eq!(proxy::margin_length(0.000_5), 16.0);
+    assert_eq!(proxy::margin_length(0.0), 16.0);
+    assert_eq!(proxy::margin_length(1000.0), 1.0);
 }
 
 /// A volume of two proxy cells of `c` voxels along x: the first half air (x < c/2), half
@@ -376,9 +385,9 @@ fn proxy_cell_half_air_has_the_effective_extinction_of_its_groups() {
         assert!((ext2[1] - 2.0 * e).abs() < 1e-5);
         assert!(ext2[0] > ext[0] && ext2[0] < 2.0 * ext[0]);
         // The cached extinction is the same, and follows the weights.
-        assert_eq!(*proxy.extinction_at(&[1.0]), ext);
-        assert_eq!(*proxy.extinction_at(&[2.0]), ext2);
-        assert_eq!(*proxy.extinction_at(&[1.0]), ext);
+        assert_eq!(proxy.extinction_at(&[1.0]).cells(), ext);
+        assert_eq!(proxy.extinction_at(&[2.0]).cells(), ext2);
+        assert_eq!(proxy.extinction_at(&[1.0]).cells(), ext);
         // A ray along x through both cells: the half-air cell adds its effective depth over
         // its c voxels, the uniform one reaches the rest at e per unit.
         let ray = crate::render::IndexRay {
@@ -387,7 +396,7 @@ fn proxy_cell_half_air_has_the_effective_extinction_of_its_groups() {
             dir: [1.0, 0.0, 0.0],
         };
         let depth = want * c as f32 + 0.5 * e;
-        let t = proxy.termination(&ext, &ray, depth);
+        let t = proxy.termination(&Extinction::new(ext, proxy.cells()), &ray, depth);
         assert!((t - (1.0 + c as f32 + 0.5)).abs() < 1e-3, "{c}: {t}");
     }
 }

@@ -59,6 +59,13 @@ pub struct CullCase {
     pub samples: u64,
     /// Max over mean samples per rank.
     pub load_balance_max_over_mean_samples: f64,
+    /// Median over the repetitions of the slowest rank's verification time (0 unless
+    /// verified).
+    pub max_verify_ms: f64,
+    /// The same for the repair.
+    pub max_repair_ms: f64,
+    /// Bricks repaired (of the median frame).
+    pub repaired: usize,
 }
 
 impl CullCase {
@@ -66,12 +73,17 @@ impl CullCase {
     fn of(mode: CullMode, (ranks, replicas): (usize, usize), mut runs: Vec<FrameStats>) -> Self {
         // Each of frame and culling time is the median of its own: the slowest rank's
         // culling in one frame says little on a machine shared with other work.
-        let mut culls: Vec<f64> = runs
-            .iter()
-            .map(|st| st.ranks.iter().map(|r| r.cull_ms).fold(0.0, f64::max))
-            .collect();
-        culls.sort_by(f64::total_cmp);
-        let max_cull = culls[culls.len() / 2];
+        let median_of_slowest = |f: &dyn Fn(&crate::frame::RankStats) -> f64| {
+            let mut v: Vec<f64> = runs
+                .iter()
+                .map(|st| st.ranks.iter().map(f).fold(0.0, f64::max))
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let max_cull = median_of_slowest(&|r| r.cull_ms);
+        let max_verify = median_of_slowest(&|r| r.verify_ms);
+        let max_repair = median_of_slowest(&|r| r.repair_ms);
         runs.sort_by(|a, b| a.frame_ms.total_cmp(&b.frame_ms));
         let st = &runs[runs.len() / 2];
         CullCase {
@@ -86,6 +98,9 @@ impl CullCase {
             culled_fraction: culled_fraction(st),
             samples: st.samples,
             load_balance_max_over_mean_samples: load_balance(st),
+            max_verify_ms: max_verify,
+            max_repair_ms: max_repair,
+            repaired: st.bricks.repaired,
         }
     }
 }
