@@ -516,8 +516,13 @@ fn bench_cull_reports_every_case_and_each_target_in_one_run() {
             "cull_share_of_frame",
             "culled_fraction",
             "load_balance_max_over_mean_samples",
+            "max_verify_ms",
+            "max_repair_ms",
         ] {
             assert!(c[key].as_f64().is_some(), "{key} in {c}");
+        }
+        for key in ["repaired", "samples"] {
+            assert!(c[key].as_u64().is_some(), "{key} in {c}");
         }
     }
     let targets = r["targets"].as_array().unwrap();

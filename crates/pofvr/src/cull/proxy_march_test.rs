@@ -8,15 +8,14 @@ use crate::render::IndexRay;
 fn reference(ext: &[f32], n: [usize; 3], edge: usize, ray: &IndexRay, depth: f32) -> f32 {
     let hi = n.map(|c| (c * edge) as f32);
     let (mut t0, mut t1) = (0f32, f32::INFINITY);
-    for a in 0..3 {
-        let (o, d) = (ray.o[a], ray.d[a]);
+    for ((&o, &d), &hi) in ray.o.iter().zip(&ray.d).zip(&hi) {
         if d == 0.0 {
-            if o < 0.0 || o >= hi[a] {
+            if o < 0.0 || o >= hi {
                 return f32::INFINITY;
             }
             continue;
         }
-        let (ta, tb) = (-o / d, (hi[a] - o) / d);
+        let (ta, tb) = (-o / d, (hi - o) / d);
         t0 = t0.max(ta.min(tb));
         t1 = t1.min(ta.max(tb));
     }
