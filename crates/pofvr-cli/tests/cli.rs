@@ -694,8 +694,14 @@ fn the_engine_is_march_by_default_for_one_process_and_equals_whole() {
     assert!(s["samples_per_ray"].as_f64().unwrap() > 0.0, "{s}");
     assert!(s["skipped_samples"].as_u64().unwrap() > 0, "{s}");
     assert!(s["occupancy_ms"].is_number(), "{s}");
+    let simd = s["march_simd"].as_str().unwrap_or_default();
+    assert!(
+        ["avx512", "avx2", "walk-avx2", "sse2", "scalar"].contains(&simd),
+        "{s}"
+    );
     let (whole, w) = run(&["--whole"], "whole");
     assert_eq!(w["engine"], "whole", "{w}");
+    assert!(w["march_simd"].is_null(), "{w}");
     assert_eq!(march, whole, "the march image is the --whole image");
     assert!(s["samples_per_ray"].as_f64() < w["samples_per_ray"].as_f64());
     let (_, b) = run(&["--engine", "bricks"], "bricks");

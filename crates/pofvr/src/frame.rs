@@ -446,6 +446,9 @@ pub struct FrameStats {
     /// The march engine's rebuild of the occupancy for the frame's weights, in
     /// milliseconds, inside `frame_ms` (0 for the others).
     pub occupancy_ms: f64,
+    /// The loop the march engine ran ([`crate::render::MarchStats::simd`]: "avx512",
+    /// "avx2", "walk-avx2", "sse2" or "scalar"); `None` for the other engines.
+    pub march_simd: Option<&'static str>,
     /// Whether the culling was verified (and repaired) while compositing.
     pub verified: bool,
     /// The predictor of a verified frame (`None` otherwise).
@@ -735,6 +738,7 @@ pub(crate) fn march_with(
     let mut stats = FrameStats::from_rays(st.rays, start.elapsed().as_secs_f64(), "march");
     stats.skipped_samples = st.skipped_samples;
     stats.occupancy_ms = occupancy_ms;
+    stats.march_simd = Some(st.simd);
     // No brick is culled, and none is projected: every non-empty one counts as visible.
     let empty = job
         .grid

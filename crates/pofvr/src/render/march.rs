@@ -52,19 +52,27 @@ const CHUNK: i32 = 16;
 /// the sample loop than marching its samples of zero opacity does.
 const MIN_SKIP: i32 = 2;
 
-/// What a march frame took: the rays and samples, and the samples jumped over.
+/// What a march frame took: the rays and samples, the samples jumped over, and the loop
+/// that marched them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct MarchStats {
     /// Rays that met the volume and samples taken.
     pub rays: RayStats,
     /// Lattice samples in empty cells the rays jumped over before terminating.
     pub skipped_samples: u64,
+    /// The loop that ran: "avx512" (packets of sixteen rays), "avx2" (packets of eight),
+    /// or, where no packet loop runs, the walk around the one-ray loop
+    /// ([`RayCaster::simd`]): "walk-avx2", "sse2" or "scalar". Empty before a frame.
+    pub simd: &'static str,
 }
 
 impl std::ops::AddAssign for MarchStats {
     fn add_assign(&mut self, o: Self) {
         self.rays += o.rays;
         self.skipped_samples += o.skipped_samples;
+        if self.simd.is_empty() {
+            self.simd = o.simd;
+        }
     }
 }
 
@@ -86,10 +94,10 @@ impl RayCaster<'_> {
             self.volume().unit(),
             settings.jitter.map(|seed| (seed, settings.step)),
         );
-        let stats = with_voxels!(self.volume().data(), v => {
+        let mut stats = with_voxels!(self.volume().data(), v => {
             let tri = TrilinearSampler::new(v, self.volume().dims());
             if let Some(st) = self.render_packets(&tri, &rays, occ, w, image.pixels_mut()) {
-                st
+                MarchStats { simd: self.packet_simd(), ..st }
             } else {
             image
                 .pixels_mut()
@@ -122,6 +130,12 @@ impl RayCaster<'_> {
                 })
             }
         });
+        if stats.simd.is_empty() {
+            stats.simd = match self.simd() {
+                "avx2" => "walk-avx2",
+                other => other,
+            };
+        }
         (image, stats)
     }
 

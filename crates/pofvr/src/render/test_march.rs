@@ -55,6 +55,14 @@ fn compare(
             );
         }
         assert_eq!(st.rays.rays, ref_st.rays, "rays that met the volume");
+        // The stats name the loop that ran: the packets asked for (or the walk around the
+        // AVX2 loop, on a volume too small for the packets' wide reads), else the walk,
+        // which runs the SSE2 loop where AVX2 is off.
+        match want_packets {
+            "none" if cfg!(target_arch = "x86_64") => assert_eq!(st.simd, "sse2"),
+            "none" => assert_eq!(st.simd, "scalar"),
+            p => assert!(st.simd == p || st.simd == "walk-avx2", "{p}: {st:?}"),
+        }
         if settings.ert > 1.0 {
             // Without termination every lattice sample is either taken or skipped.
             assert_eq!(
@@ -508,4 +516,39 @@ fn frame_rays_equal_the_casters_pixel_rays_bit_for_bit() {
             }
         }
     }
+}
+
+#[test]
+fn march_stats_name_the_packet_loop_that_ran() {
+    let vol = Phantom::SheppLogan.generate(48);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
+    let cls = SampledTf::new(&tf, grid.value_range()).classify(&tf.weights, 1.0);
+    let occ = Occupancy::new(&CellRanges::new(&vol), &cls);
+    let cam = Camera::orbit(&vol, 30.0, 20.0, 32, 32, Projection::Orthographic);
+    let caster = |avx2: bool, avx512: bool| {
+        RayCaster::new(&vol, &cls, RenderSettings::default())
+            .with_avx2(avx2)
+            .with_avx512(avx512)
+    };
+    // A 48³ volume fits the packets' wide reads: where the CPU has them they run.
+    for (avx2, avx512, want) in [(true, true, "avx512"), (true, false, "avx2")] {
+        let c = caster(avx2, avx512);
+        let (_, st) = c.render_march(&cam, &occ);
+        if c.packet_simd() == want {
+            assert_eq!(st.simd, want);
+        } else {
+            println!(
+                "skipped: the {want} packets (this CPU runs {})",
+                c.packet_simd()
+            );
+        }
+    }
+    let (_, st) = caster(false, false).render_march(&cam, &occ);
+    let want = if cfg!(target_arch = "x86_64") {
+        "sse2"
+    } else {
+        "scalar"
+    };
+    assert_eq!(st.simd, want);
 }
