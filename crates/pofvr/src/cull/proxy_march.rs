@@ -10,6 +10,7 @@
 
 use std::ops::ControlFlow;
 
+use crate::brick::IndexBox;
 use crate::render::IndexRay;
 
 /// Cells per block edge: 4, so a block of the 2³-voxel proxy is 8 voxels (the 4³ proxy's
@@ -70,22 +71,19 @@ impl Extinction {
     /// `depth`; infinite when it never does.
     #[must_use]
     pub fn termination(&self, edge: usize, ray: &IndexRay, depth: f32) -> f32 {
-        let hi = self.counts.map(|c| (c * edge) as f32);
-        let (mut t0, mut t1) = (0f32, f32::INFINITY);
-        for ((&o, &d), &hi) in ray.o.iter().zip(&ray.d).zip(&hi) {
-            if d == 0.0 {
-                if o < 0.0 || o >= hi {
-                    return f32::INFINITY;
-                }
-                continue;
-            }
-            let (ta, tb) = ((0.0 - o) / d, (hi - o) / d);
-            t0 = t0.max(ta.min(tb));
-            t1 = t1.min(ta.max(tb));
-        }
-        if t0 >= t1 {
+        // The ray's stretch inside the cells, from its origin on (the sample rays start
+        // at the eye or the volume's entry, never behind it).
+        let cells = IndexBox {
+            lo: [0.0; 3],
+            hi: self.counts.map(|c| (c * edge) as f32),
+        };
+        let Some((t0, t1)) = ray
+            .span(&cells)
+            .map(|(t0, t1)| (t0.max(0.0), t1))
+            .filter(|(t0, t1)| t0 < t1)
+        else {
             return f32::INFINITY;
-        }
+        };
         let coarse = Lattice {
             edge: (edge * BLOCK) as f32,
             lo: [0; 3],
