@@ -17,7 +17,8 @@
 //! Where the CPU has AVX2, the frame goes in packets of eight rays (4 × 2 pixels), one
 //! ray per lane, through `arch/x86_64/packet.rs` (sixteen, 4 × 4, through
 //! `arch/x86_64/packet16.rs` where it has AVX-512): composited lane-wise, and leaping for
-//! the packet as a whole by the rule above evaluated lane-wise. Elsewhere (SSE2, or the
+//! the packet as a whole by the rule above evaluated lane-wise; while the packet steps, a
+//! lane in an empty cell reads no corners of its own. Elsewhere (SSE2, or the
 //! scalar loop on request) each ray walks alone: marching a sample of zero opacity changes
 //! nothing either, so the walk marches through occupied cells, and the empty cells next to
 //! them, in chunks of samples through the sample loops ([`super::arch::march`]) without
@@ -58,7 +59,9 @@ const MIN_SKIP: i32 = 2;
 pub struct MarchStats {
     /// Rays that met the volume and samples taken.
     pub rays: RayStats,
-    /// Lattice samples in empty cells the rays jumped over before terminating.
+    /// Lattice samples in empty cells the rays did not read before terminating: jumped
+    /// over, or, in a packet that steps on because another ray is in an occupied cell,
+    /// passed without reading their corners (they are of zero opacity either way).
     pub skipped_samples: u64,
     /// The loop that ran: "avx512" (packets of sixteen rays), "avx2" (packets of eight),
     /// or, where no packet loop runs, the walk around the one-ray loop

@@ -27,8 +27,9 @@ use std::arch::x86_64::{
     _mm256_andnot_si256, _mm256_blendv_ps, _mm256_castps_si256, _mm256_castsi256_ps, _mm256_cmp_ps,
     _mm256_cmpeq_epi32, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32, _mm256_div_ps,
     _mm256_loadu_si256, _mm256_max_epi32, _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps,
-    _mm256_movemask_ps, _mm256_mul_ps, _mm256_mullo_epi32, _mm256_or_si256, _mm256_set1_epi32,
-    _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32,
+    _mm256_movemask_ps, _mm256_mul_ps, _mm256_mullo_epi32, _mm256_or_si256,
+    _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32,
+    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32,
     _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ,
     _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
 };
@@ -263,6 +264,18 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             k = next;
             continue;
         }
+        // Lanes in empty cells read the corners of an occupied lane instead of their own:
+        // their samples classify to zero opacity whatever they read (the rule the leaps
+        // rest on), and the loads then hit lines already on their way in. They count as
+        // skipped, not as samples taken.
+        let need_bits = occ_bits & live_bits;
+        let lane_bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let need = _mm256_cmpeq_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(need_bits as i32), lane_bit),
+            lane_bit,
+        );
+        let src = _mm256_set1_epi32(need_bits.trailing_zeros() as i32);
+        let base = blend_i(_mm256_permutevar8x32_epi32(base, src), base, need);
         // SAFETY: every lane's position is clamped into the data, so its cell's corners
         // are inside `v`; past `limit` the gather of a wider word would read past the end.
         let c = unsafe {
@@ -291,9 +304,10 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
         let bin = _mm256_cvttps_epi32(x);
         // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
         let [r, g, b, alpha] = unsafe { rgba8(rgba, bin) };
-        st.samples += u64::from(live_bits.count_ones());
+        st.samples += u64::from(need_bits.count_ones());
+        st.skipped += u64::from((live_bits & !occ_bits).count_ones());
         let opaque = _mm256_and_ps(
-            _mm256_castsi256_ps(live),
+            _mm256_castsi256_ps(need),
             _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),
         );
         if _mm256_movemask_ps(opaque) != 0 {

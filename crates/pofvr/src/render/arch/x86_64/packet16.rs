@@ -18,8 +18,8 @@ use std::arch::x86_64::{
     _mm512_extracti64x4_epi64, _mm512_insertf32x8, _mm512_loadu_epi32, _mm512_loadu_ps,
     _mm512_mask_add_ps, _mm512_mask_blend_epi32, _mm512_mask_blend_ps, _mm512_max_epi32,
     _mm512_max_ps, _mm512_min_epi32, _mm512_min_ps, _mm512_mul_ps, _mm512_mullo_epi32,
-    _mm512_reduce_min_epi32, _mm512_set1_epi32, _mm512_set1_ps, _mm512_setzero_ps,
-    _mm512_setzero_si512, _mm512_slli_epi32, _mm512_sqrt_ps, _mm512_srli_epi32,
+    _mm512_permutexvar_epi32, _mm512_reduce_min_epi32, _mm512_set1_epi32, _mm512_set1_ps,
+    _mm512_setzero_ps, _mm512_setzero_si512, _mm512_slli_epi32, _mm512_sqrt_ps, _mm512_srli_epi32,
     _mm512_storeu_epi32, _mm512_storeu_ps, _mm512_sub_epi32, _mm512_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ,
     _CMP_LE_OQ, _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
 };
@@ -265,6 +265,13 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
             k = next;
             continue;
         }
+        // Lanes in empty cells read the corners of an occupied lane instead of their own:
+        // their samples classify to zero opacity whatever they read (the rule the leaps
+        // rest on), and the loads then hit lines already on their way in. They count as
+        // skipped, not as samples taken.
+        let need = occ_bits & live;
+        let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
+        let base = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
         let [b0, b1] = halves(base);
         // SAFETY: every lane's position is clamped into the data, so its cell's corners
         // are inside `v`; past `limit` the gather of a wider word would read past the end.
@@ -299,8 +306,9 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
         // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
         let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
         let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
-        st.samples += u64::from(live.count_ones());
-        let opaque = live & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
+        st.samples += u64::from(need.count_ones());
+        st.skipped += u64::from((live & !occ_bits).count_ones());
+        let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
         if opaque != 0 {
             let mut s = [r, g, b];
             if SHADE {
