@@ -10,6 +10,12 @@
 //! composite, leap estimates) at half the instructions per lane; the loads (corners,
 //! occupancy entries, table entries) stay one per lane, done by the eight-lane helpers on
 //! each half.
+//!
+//! One difference in how the packet moves: where its rays are oblique to the lattice
+//! ([`oblique`]), each lane keeps its own sample index, leaping or sampling on its own,
+//! instead of the packet moving in lockstep. A lane's samples, and their order, are the
+//! same either way; what changes is how many iterations the packet takes (the slowest
+//! lane's steps instead of the union of all lanes'). Measured in `docs/results.md`.
 
 use std::arch::x86_64::{
     __m256, __m256i, __m512, __m512i, __mmask16, _mm512_abs_ps, _mm512_add_epi32, _mm512_add_ps,
@@ -150,7 +156,6 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
     let one = _mm512_set1_epi32(1);
     let hmin =
         |m: __mmask16, v: __m512i| _mm512_reduce_min_epi32(_mm512_mask_blend_epi32(m, big, v));
-    let mut k = hmin(has, k0v);
     let mut acc = [0, 1, 2, 3].map(|c| lane(&|j| pk.acc[j][c]));
     let (step, ert) = (p.step, _mm512_set1_ps(p.ert));
     let stepv = _mm512_set1_ps(step);
@@ -202,135 +207,264 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
     let mut last_idx = _mm512_set1_epi32(-1);
     let mut lv = [0i32; LANES];
     let mut occ_bits: __mmask16 = 0;
-    loop {
-        let kv = _mm512_set1_epi32(k);
-        // Lanes whose ray claims sample k and has not terminated.
-        let started = _mm512_cmpgt_epi32_mask(_mm512_add_epi32(kv, one), k0v);
-        let before_end = _mm512_cmpgt_epi32_mask(k1v, kv);
-        // As the reference's `acc[3] >= ert` stop, negated.
-        let open = _mm512_cmp_ps_mask::<_CMP_NGE_UQ>(acc[3], ert);
-        let live = started & before_end & open;
-        // Lanes yet to start.
-        let pending = !started & has;
-        if live == 0 {
-            if pending == 0 {
+    if oblique(&pk.rays[has.trailing_zeros() as usize].d) {
+        // Oblique rays: each lane at its own sample index. A lane in an empty cell leaps on
+        // its own (by the rule of `leap_end`, lane-wise), a lane in an occupied one samples,
+        // in the same iteration; each lane's samples are those of the lockstep loop below, in
+        // the same order, so the pixels are the same.
+        let mut kv = _mm512_mask_blend_epi32(has, k1v, k0v);
+        loop {
+            // As the reference's `acc[3] >= ert` stop, negated.
+            let open = _mm512_cmp_ps_mask::<_CMP_NGE_UQ>(acc[3], ert);
+            let live = _mm512_cmpgt_epi32_mask(k1v, kv) & open & has;
+            if live == 0 {
                 break;
             }
-            k = hmin(pending, k0v);
-            continue;
-        }
-        let t = _mm512_set1_ps(k as f32 * step);
-        let mut base = _mm512_setzero_si512();
-        let mut f = [zero; 3];
-        let mut cell = [_mm512_setzero_si512(); 3];
-        for a in 0..3 {
-            // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
-            let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
-            let x = _mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]);
-            let i = _mm512_cvttps_epi32(_mm512_min_ps(x, last[a]));
-            f[a] = _mm512_sub_ps(x, _mm512_cvtepi32_ps(i));
-            base = _mm512_add_epi32(base, _mm512_mullo_epi32(i, strides[a]));
-            cell[a] = shift(i);
-        }
-        let idx = _mm512_add_epi32(
-            _mm512_add_epi32(
-                _mm512_mullo_epi32(cell[2], n01),
-                _mm512_mullo_epi32(cell[1], n0),
-            ),
-            cell[0],
-        );
-        // The entries of the previous sample's cells serve while no lane changed cell.
-        if _mm512_cmpeq_epi32_mask(idx, last_idx) != 0xFFFF {
-            last_idx = idx;
-            let mut ci = [0u32; LANES];
-            // SAFETY: `ci` holds sixteen u32.
-            unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
-            occ_bits = 0;
-            for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
-                // SAFETY: every lane's cell is inside the grid (positions are clamped).
-                let e = unsafe { *tab.leap.get_unchecked(c as usize) };
-                *l = i32::from(e);
-                occ_bits |= u16::from(e & OCCUPIED != 0) << j;
+            let t = _mm512_mul_ps(_mm512_cvtepi32_ps(kv), stepv);
+            let mut base = _mm512_setzero_si512();
+            let mut f = [zero; 3];
+            let mut cell = [_mm512_setzero_si512(); 3];
+            for a in 0..3 {
+                // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
+                let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
+                let x = _mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]);
+                let i = _mm512_cvttps_epi32(_mm512_min_ps(x, last[a]));
+                f[a] = _mm512_sub_ps(x, _mm512_cvtepi32_ps(i));
+                base = _mm512_add_epi32(base, _mm512_mullo_epi32(i, strides[a]));
+                cell[a] = shift(i);
             }
+            let idx = _mm512_add_epi32(
+                _mm512_add_epi32(
+                    _mm512_mullo_epi32(cell[2], n01),
+                    _mm512_mullo_epi32(cell[1], n0),
+                ),
+                cell[0],
+            );
+            // The entries of the previous sample's cells serve while no lane changed cell.
+            if _mm512_cmpeq_epi32_mask(idx, last_idx) != 0xFFFF {
+                last_idx = idx;
+                let mut ci = [0u32; LANES];
+                // SAFETY: `ci` holds sixteen u32.
+                unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
+                occ_bits = 0;
+                for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
+                    // SAFETY: every lane's cell is inside the grid (positions are clamped).
+                    let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+                    *l = i32::from(e);
+                    occ_bits |= u16::from(e & OCCUPIED != 0) << j;
+                }
+            }
+            let empty = live & !occ_bits;
+            let need = live & occ_bits;
+            let mut next = _mm512_add_epi32(kv, one);
+            if empty != 0 {
+                // SAFETY: `lv` holds sixteen i32.
+                let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
+                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = _mm512_max_epi32(kb, next);
+                let mut gone = [0i32; LANES];
+                // SAFETY: `gone` holds sixteen i32.
+                unsafe { _mm512_storeu_epi32(gone.as_mut_ptr().cast(), _mm512_sub_epi32(kb, kv)) };
+                st.skipped += (0..LANES)
+                    .filter(|&j| empty >> j & 1 != 0)
+                    .map(|j| gone[j] as u64)
+                    .sum::<u64>();
+                next = _mm512_mask_blend_epi32(empty, next, kb);
+            }
+            if need != 0 {
+                let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
+                let base = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
+                // SAFETY: every lane's position is clamped into the data, so its cell's corners
+                // are inside `v`; past `limit` the gather of a wider word would read past the end.
+                let c: [__m512; 8] = unsafe {
+                    let [b0, b1] = halves(base);
+                    let (h0, h1) = if _mm512_cmpgt_epi32_mask(base, limit) == 0 {
+                        (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
+                    } else {
+                        (
+                            corners_exact(v, b0, tri.step),
+                            corners_exact(v, b1, tri.step),
+                        )
+                    };
+                    std::array::from_fn(|i| join(h0[i], h1[i]))
+                };
+                let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
+                let lerp = |a: __m512, b: __m512, w: __m512| {
+                    _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), w))
+                };
+                let c00 = lerp(c000, c100, f[0]);
+                let c10 = lerp(c010, c110, f[0]);
+                let c01 = lerp(c001, c101, f[0]);
+                let c11 = lerp(c011, c111, f[0]);
+                let c0 = lerp(c00, c10, f[1]);
+                let c1 = lerp(c01, c11, f[1]);
+                let value = lerp(c0, c1, f[2]);
+                let x = _mm512_min_ps(
+                    _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(value, lo), scale), zero),
+                    bin_max,
+                );
+                let [bl, bh] = halves(_mm512_cvttps_epi32(x));
+                // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
+                let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
+                let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
+                st.samples += u64::from(need.count_ones());
+                let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
+                if opaque != 0 {
+                    let mut s = [r, g, b];
+                    if SHADE {
+                        let (d00, d10) = (_mm512_sub_ps(c100, c000), _mm512_sub_ps(c110, c010));
+                        let (d01, d11) = (_mm512_sub_ps(c101, c001), _mm512_sub_ps(c111, c011));
+                        let (e0, e1) = (_mm512_sub_ps(c10, c00), _mm512_sub_ps(c11, c01));
+                        let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
+                        let g = [
+                            lerp(x0, x1, f[2]),
+                            lerp(e0, e1, f[2]),
+                            _mm512_sub_ps(c1, c0),
+                        ];
+                        let l = lambert16(g, spacing, dir);
+                        s = s.map(|s| _mm512_mul_ps(s, l));
+                    }
+                    let w = _mm512_sub_ps(_mm512_set1_ps(1.0), acc[3]);
+                    for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
+                        *a = _mm512_mask_add_ps(*a, opaque, *a, _mm512_mul_ps(w, s));
+                    }
+                }
+            }
+            kv = _mm512_mask_blend_epi32(live, kv, next);
         }
-        if occ_bits & live == 0 {
-            // SAFETY: `lv` holds sixteen i32.
-            let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
-            // Every live lane is in an empty cell: the packet leaps.
-            let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
-            let kb = _mm512_mask_blend_epi32(live, big, kb);
-            let kb = _mm512_min_epi32(kb, _mm512_mask_blend_epi32(pending, big, k0v));
-            let next = _mm512_reduce_min_epi32(kb).max(k + 1);
-            st.skipped += u64::from(live.count_ones()) * (next - k) as u64;
-            k = next;
-            continue;
-        }
-        // Lanes in empty cells read the corners of an occupied lane instead of their own:
-        // their samples classify to zero opacity whatever they read (the rule the leaps
-        // rest on), and the loads then hit lines already on their way in. They count as
-        // skipped, not as samples taken.
-        let need = occ_bits & live;
-        let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
-        let base = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
-        let [b0, b1] = halves(base);
-        // SAFETY: every lane's position is clamped into the data, so its cell's corners
-        // are inside `v`; past `limit` the gather of a wider word would read past the end.
-        let c: [__m512; 8] = unsafe {
-            let (h0, h1) = if _mm512_cmpgt_epi32_mask(base, limit) == 0 {
-                (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
-            } else {
-                (
-                    corners_exact(v, b0, tri.step),
-                    corners_exact(v, b1, tri.step),
-                )
+    } else {
+        // Rays along an axis: the packet in lockstep, at one sample index `k`.
+        let mut k = hmin(has, k0v);
+        loop {
+            let kv = _mm512_set1_epi32(k);
+            // Lanes whose ray claims sample k and has not terminated.
+            let started = _mm512_cmpgt_epi32_mask(_mm512_add_epi32(kv, one), k0v);
+            let before_end = _mm512_cmpgt_epi32_mask(k1v, kv);
+            // As the reference's `acc[3] >= ert` stop, negated.
+            let open = _mm512_cmp_ps_mask::<_CMP_NGE_UQ>(acc[3], ert);
+            let live = started & before_end & open;
+            // Lanes yet to start.
+            let pending = !started & has;
+            if live == 0 {
+                if pending == 0 {
+                    break;
+                }
+                k = hmin(pending, k0v);
+                continue;
+            }
+            let t = _mm512_set1_ps(k as f32 * step);
+            let mut base = _mm512_setzero_si512();
+            let mut f = [zero; 3];
+            let mut cell = [_mm512_setzero_si512(); 3];
+            for a in 0..3 {
+                // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
+                let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
+                let x = _mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]);
+                let i = _mm512_cvttps_epi32(_mm512_min_ps(x, last[a]));
+                f[a] = _mm512_sub_ps(x, _mm512_cvtepi32_ps(i));
+                base = _mm512_add_epi32(base, _mm512_mullo_epi32(i, strides[a]));
+                cell[a] = shift(i);
+            }
+            let idx = _mm512_add_epi32(
+                _mm512_add_epi32(
+                    _mm512_mullo_epi32(cell[2], n01),
+                    _mm512_mullo_epi32(cell[1], n0),
+                ),
+                cell[0],
+            );
+            // The entries of the previous sample's cells serve while no lane changed cell.
+            if _mm512_cmpeq_epi32_mask(idx, last_idx) != 0xFFFF {
+                last_idx = idx;
+                let mut ci = [0u32; LANES];
+                // SAFETY: `ci` holds sixteen u32.
+                unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
+                occ_bits = 0;
+                for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
+                    // SAFETY: every lane's cell is inside the grid (positions are clamped).
+                    let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+                    *l = i32::from(e);
+                    occ_bits |= u16::from(e & OCCUPIED != 0) << j;
+                }
+            }
+            if occ_bits & live == 0 {
+                // SAFETY: `lv` holds sixteen i32.
+                let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
+                // Every live lane is in an empty cell: the packet leaps.
+                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = _mm512_mask_blend_epi32(live, big, kb);
+                let kb = _mm512_min_epi32(kb, _mm512_mask_blend_epi32(pending, big, k0v));
+                let next = _mm512_reduce_min_epi32(kb).max(k + 1);
+                st.skipped += u64::from(live.count_ones()) * (next - k) as u64;
+                k = next;
+                continue;
+            }
+            // Lanes in empty cells read the corners of an occupied lane instead of their own:
+            // their samples classify to zero opacity whatever they read (the rule the leaps
+            // rest on), and the loads then hit lines already on their way in. They count as
+            // skipped, not as samples taken.
+            let need = occ_bits & live;
+            let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
+            let base = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
+            let [b0, b1] = halves(base);
+            // SAFETY: every lane's position is clamped into the data, so its cell's corners
+            // are inside `v`; past `limit` the gather of a wider word would read past the end.
+            let c: [__m512; 8] = unsafe {
+                let (h0, h1) = if _mm512_cmpgt_epi32_mask(base, limit) == 0 {
+                    (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
+                } else {
+                    (
+                        corners_exact(v, b0, tri.step),
+                        corners_exact(v, b1, tri.step),
+                    )
+                };
+                std::array::from_fn(|i| join(h0[i], h1[i]))
             };
-            std::array::from_fn(|i| join(h0[i], h1[i]))
-        };
-        let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
-        let lerp = |a: __m512, b: __m512, w: __m512| {
-            _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), w))
-        };
-        let c00 = lerp(c000, c100, f[0]);
-        let c10 = lerp(c010, c110, f[0]);
-        let c01 = lerp(c001, c101, f[0]);
-        let c11 = lerp(c011, c111, f[0]);
-        let c0 = lerp(c00, c10, f[1]);
-        let c1 = lerp(c01, c11, f[1]);
-        let value = lerp(c0, c1, f[2]);
-        // As `ClassifierView::sample`: `vmaxps` returns its second operand (0) for NaN.
-        let x = _mm512_min_ps(
-            _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(value, lo), scale), zero),
-            bin_max,
-        );
-        let [bl, bh] = halves(_mm512_cvttps_epi32(x));
-        // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
-        let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
-        let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
-        st.samples += u64::from(need.count_ones());
-        st.skipped += u64::from((live & !occ_bits).count_ones());
-        let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
-        if opaque != 0 {
-            let mut s = [r, g, b];
-            if SHADE {
-                // `Cell::gradient`, lane-wise.
-                let (d00, d10) = (_mm512_sub_ps(c100, c000), _mm512_sub_ps(c110, c010));
-                let (d01, d11) = (_mm512_sub_ps(c101, c001), _mm512_sub_ps(c111, c011));
-                let (e0, e1) = (_mm512_sub_ps(c10, c00), _mm512_sub_ps(c11, c01));
-                let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
-                let g = [
-                    lerp(x0, x1, f[2]),
-                    lerp(e0, e1, f[2]),
-                    _mm512_sub_ps(c1, c0),
-                ];
-                let l = lambert16(g, spacing, dir);
-                s = s.map(|s| _mm512_mul_ps(s, l));
+            let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
+            let lerp = |a: __m512, b: __m512, w: __m512| {
+                _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), w))
+            };
+            let c00 = lerp(c000, c100, f[0]);
+            let c10 = lerp(c010, c110, f[0]);
+            let c01 = lerp(c001, c101, f[0]);
+            let c11 = lerp(c011, c111, f[0]);
+            let c0 = lerp(c00, c10, f[1]);
+            let c1 = lerp(c01, c11, f[1]);
+            let value = lerp(c0, c1, f[2]);
+            // As `ClassifierView::sample`: `vmaxps` returns its second operand (0) for NaN.
+            let x = _mm512_min_ps(
+                _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(value, lo), scale), zero),
+                bin_max,
+            );
+            let [bl, bh] = halves(_mm512_cvttps_epi32(x));
+            // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
+            let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
+            let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
+            st.samples += u64::from(need.count_ones());
+            st.skipped += u64::from((live & !occ_bits).count_ones());
+            let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
+            if opaque != 0 {
+                let mut s = [r, g, b];
+                if SHADE {
+                    // `Cell::gradient`, lane-wise.
+                    let (d00, d10) = (_mm512_sub_ps(c100, c000), _mm512_sub_ps(c110, c010));
+                    let (d01, d11) = (_mm512_sub_ps(c101, c001), _mm512_sub_ps(c111, c011));
+                    let (e0, e1) = (_mm512_sub_ps(c10, c00), _mm512_sub_ps(c11, c01));
+                    let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
+                    let g = [
+                        lerp(x0, x1, f[2]),
+                        lerp(e0, e1, f[2]),
+                        _mm512_sub_ps(c1, c0),
+                    ];
+                    let l = lambert16(g, spacing, dir);
+                    s = s.map(|s| _mm512_mul_ps(s, l));
+                }
+                let w = _mm512_sub_ps(_mm512_set1_ps(1.0), acc[3]);
+                for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
+                    *a = _mm512_mask_add_ps(*a, opaque, *a, _mm512_mul_ps(w, s));
+                }
             }
-            let w = _mm512_sub_ps(_mm512_set1_ps(1.0), acc[3]);
-            for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
-                *a = _mm512_mask_add_ps(*a, opaque, *a, _mm512_mul_ps(w, s));
-            }
+            k += 1;
         }
-        k += 1;
     }
     let mut out = [[0f32; LANES]; 4];
     for (o, a) in out.iter_mut().zip(acc) {
@@ -414,3 +548,18 @@ fn leap_end(
     let fallback = _mm512_mask_blend_epi32(in2, _mm512_add_epi32(kv, one), kb1);
     _mm512_mask_blend_epi32(in1, fallback, kb)
 }
+
+/// Whether rays of index-space direction `d` are oblique to the lattice: further than
+/// about 10° from every axis. Rays along an axis cross the cell faces across their path
+/// at the same sample index, lane for lane, so the packet moves in lockstep at no cost
+/// and its lanes read the same slices; oblique ones cross them at different indices, and
+/// a packet in lockstep would take the union of its lanes' steps, so each lane goes on
+/// its own.
+fn oblique(d: &[f32; 3]) -> bool {
+    let m = d.iter().fold(0f32, |m, x| m.max(x.abs()));
+    let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    m < OBLIQUE_COS * n
+}
+
+/// cos 10°: see [`oblique`].
+const OBLIQUE_COS: f32 = 0.984_807_7;
