@@ -207,6 +207,48 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
     let mut last_idx = _mm512_set1_epi32(-1);
     let mut lv = [0i32; LANES];
     let mut occ_bits: __mmask16 = 0;
+    // Each lane's sample at `t`: its corners' base, fractions, occupancy cell per axis, and
+    // that cell's index in the table (lane-wise `TrilinearSampler::cell` and `Skip::cell`).
+    let locate = |t: __m512| {
+        let mut base = _mm512_setzero_si512();
+        let mut f = [zero; 3];
+        let mut cell = [_mm512_setzero_si512(); 3];
+        for a in 0..3 {
+            // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
+            let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
+            let x = _mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]);
+            let i = _mm512_cvttps_epi32(_mm512_min_ps(x, last[a]));
+            f[a] = _mm512_sub_ps(x, _mm512_cvtepi32_ps(i));
+            base = _mm512_add_epi32(base, _mm512_mullo_epi32(i, strides[a]));
+            cell[a] = shift(i);
+        }
+        let idx = _mm512_add_epi32(
+            _mm512_add_epi32(
+                _mm512_mullo_epi32(cell[2], n01),
+                _mm512_mullo_epi32(cell[1], n0),
+            ),
+            cell[0],
+        );
+        (base, f, cell, idx)
+    };
+    // The entries of the lanes' cells at `idx`, and which are occupied, as bits: those of
+    // the previous lookup serve while no lane changed cell.
+    let lookup =
+        |idx: __m512i, last_idx: &mut __m512i, lv: &mut [i32; LANES], occ_bits: &mut __mmask16| {
+            if _mm512_cmpeq_epi32_mask(idx, *last_idx) != 0xFFFF {
+                *last_idx = idx;
+                let mut ci = [0u32; LANES];
+                // SAFETY: `ci` holds sixteen u32.
+                unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
+                *occ_bits = 0;
+                for (j, (&c, l)) in ci.iter().zip(lv.iter_mut()).enumerate() {
+                    // SAFETY: every lane's cell is inside the grid (positions are clamped).
+                    let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+                    *l = i32::from(e);
+                    *occ_bits |= u16::from(e & OCCUPIED != 0) << j;
+                }
+            }
+        };
     // One sample of the lanes in `need` (those in occupied cells), composited into `acc`
     // as the reference does: the same in lockstep and lane by lane. Lanes outside `need`
     // read the corners of a lane in it instead of their own: their samples classify to
@@ -286,39 +328,8 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 break;
             }
             let t = _mm512_mul_ps(_mm512_cvtepi32_ps(kv), stepv);
-            let mut base = _mm512_setzero_si512();
-            let mut f = [zero; 3];
-            let mut cell = [_mm512_setzero_si512(); 3];
-            for a in 0..3 {
-                // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
-                let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
-                let x = _mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]);
-                let i = _mm512_cvttps_epi32(_mm512_min_ps(x, last[a]));
-                f[a] = _mm512_sub_ps(x, _mm512_cvtepi32_ps(i));
-                base = _mm512_add_epi32(base, _mm512_mullo_epi32(i, strides[a]));
-                cell[a] = shift(i);
-            }
-            let idx = _mm512_add_epi32(
-                _mm512_add_epi32(
-                    _mm512_mullo_epi32(cell[2], n01),
-                    _mm512_mullo_epi32(cell[1], n0),
-                ),
-                cell[0],
-            );
-            // The entries of the previous sample's cells serve while no lane changed cell.
-            if _mm512_cmpeq_epi32_mask(idx, last_idx) != 0xFFFF {
-                last_idx = idx;
-                let mut ci = [0u32; LANES];
-                // SAFETY: `ci` holds sixteen u32.
-                unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
-                occ_bits = 0;
-                for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
-                    // SAFETY: every lane's cell is inside the grid (positions are clamped).
-                    let e = unsafe { *tab.leap.get_unchecked(c as usize) };
-                    *l = i32::from(e);
-                    occ_bits |= u16::from(e & OCCUPIED != 0) << j;
-                }
-            }
+            let (base, f, cell, idx) = locate(t);
+            lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
             let empty = live & !occ_bits;
             let need = live & occ_bits;
             let mut next = _mm512_add_epi32(kv, one);
@@ -363,39 +374,8 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 continue;
             }
             let t = _mm512_set1_ps(k as f32 * step);
-            let mut base = _mm512_setzero_si512();
-            let mut f = [zero; 3];
-            let mut cell = [_mm512_setzero_si512(); 3];
-            for a in 0..3 {
-                // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
-                let p = _mm512_add_ps(o[a], _mm512_mul_ps(t, d[a]));
-                let x = _mm512_min_ps(_mm512_max_ps(p, zero), maxv[a]);
-                let i = _mm512_cvttps_epi32(_mm512_min_ps(x, last[a]));
-                f[a] = _mm512_sub_ps(x, _mm512_cvtepi32_ps(i));
-                base = _mm512_add_epi32(base, _mm512_mullo_epi32(i, strides[a]));
-                cell[a] = shift(i);
-            }
-            let idx = _mm512_add_epi32(
-                _mm512_add_epi32(
-                    _mm512_mullo_epi32(cell[2], n01),
-                    _mm512_mullo_epi32(cell[1], n0),
-                ),
-                cell[0],
-            );
-            // The entries of the previous sample's cells serve while no lane changed cell.
-            if _mm512_cmpeq_epi32_mask(idx, last_idx) != 0xFFFF {
-                last_idx = idx;
-                let mut ci = [0u32; LANES];
-                // SAFETY: `ci` holds sixteen u32.
-                unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
-                occ_bits = 0;
-                for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
-                    // SAFETY: every lane's cell is inside the grid (positions are clamped).
-                    let e = unsafe { *tab.leap.get_unchecked(c as usize) };
-                    *l = i32::from(e);
-                    occ_bits |= u16::from(e & OCCUPIED != 0) << j;
-                }
-            }
+            let (base, f, cell, idx) = locate(t);
+            lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
             if occ_bits & live == 0 {
                 // SAFETY: `lv` holds sixteen i32.
                 let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
