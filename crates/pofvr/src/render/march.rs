@@ -193,6 +193,7 @@ impl RayCaster<'_> {
         debug_assert_eq!(TILE_ROWS % ph, 0);
         let step = self.settings().step;
         let vbox = self.volume_box();
+        let p = self.params();
         let tab = PacketTables {
             leap: occ.leaps(),
             cells: occ.dims().map(|n| n as i32),
@@ -216,18 +217,19 @@ impl RayCaster<'_> {
                 };
                 for x0 in (0..w).step_by(PW) {
                     for r0 in (0..h).step_by(ph) {
+                        let mut valid = 0u32;
                         for j in 0..N {
                             let (x, r) = (x0 + j % PW, r0 + j / PW);
-                            pk.k0[j] = 0;
-                            pk.k1[j] = 0;
-                            if x >= w || r >= h {
-                                continue;
+                            if x < w && r < h {
+                                pk.rays[j] = rays.ray(x as u32, (band * TILE_ROWS + r) as u32);
+                                valid |= 1 << j;
                             }
-                            let ray = rays.ray(x as u32, (band * TILE_ROWS + r) as u32);
-                            if let Some(span) = ray.span(&vbox) {
-                                st.rays.rays += 1;
-                                (pk.k0[j], pk.k1[j]) = sample_range(span, step);
-                                pk.rays[j] = ray;
+                        }
+                        let hit = arch::x86_64::packet_ranges(&p, &mut pk, valid, &vbox, step);
+                        st.rays.rays += u64::from(hit.count_ones());
+                        for j in 0..N {
+                            if hit >> j & 1 != 0 {
+                                let (x, r) = (x0 + j % PW, r0 + j / PW);
                                 pk.acc[j] = rows[r * w + x];
                             }
                         }

@@ -4,10 +4,12 @@
 pub(crate) mod avx2;
 pub(crate) mod packet;
 pub(crate) mod packet16;
+pub(crate) mod ranges;
 pub(crate) mod sse2;
 
 use super::{Gather, MarchParams};
-use crate::render::lattice::IndexRay;
+use crate::brick::IndexBox;
+use crate::render::lattice::{sample_range, IndexRay};
 use crate::render::sampler::TrilinearSampler;
 use packet::{Packet, PacketStats, PacketTables};
 
@@ -85,4 +87,44 @@ pub(crate) fn march_packet16<T: Gather>(
             packet16::march16::<T, false>(p, tri, tab, pk)
         }
     })
+}
+
+/// Sets `k0` and `k1` of each lane of `pk` whose bit is set in `valid` to the samples its
+/// ray claims in `b` (`sample_range(ray.span(b)?, step)`; `(0, 0)` where it misses, and in
+/// the other lanes), eight lanes at a time where AVX2 runs ([`ranges::ranges8`]); returns
+/// the lanes whose ray meets `b`, as bits.
+pub(crate) fn packet_ranges<const N: usize>(
+    p: &MarchParams<'_>,
+    pk: &mut Packet<N>,
+    valid: u32,
+    b: &IndexBox,
+    step: f32,
+) -> u32 {
+    const L: usize = ranges::LANES;
+    if p.avx2 && N.is_multiple_of(L) {
+        let mut hit = 0;
+        for g in 0..N / L {
+            let r = g * L..(g + 1) * L;
+            // SAFETY: `avx2` is only set where the CPU has AVX2.
+            let h = unsafe {
+                ranges::ranges8(
+                    pk.rays[r.clone()].try_into().expect("eight rays"),
+                    valid >> (g * L) & 0xFF,
+                    b,
+                    step,
+                    (&mut pk.k0[r.clone()]).try_into().expect("eight lanes"),
+                    (&mut pk.k1[r]).try_into().expect("eight lanes"),
+                )
+            };
+            hit |= h << (g * L);
+        }
+        return hit;
+    }
+    let mut hit = 0;
+    for j in 0..N {
+        let span = (valid >> j & 1 != 0).then(|| pk.rays[j].span(b)).flatten();
+        (pk.k0[j], pk.k1[j]) = span.map_or((0, 0), |s| sample_range(s, step));
+        hit |= u32::from(span.is_some()) << j;
+    }
+    hit
 }
