@@ -422,7 +422,12 @@ struct LeapRay {
 /// lies in the empty cell `c` with entry `leap`; the first sample, in `k + 1 ..= k1`, past
 /// the cube of empty cells around it, every sample before it checked by the sampler's own
 /// cells. Lanes whose entry is below [`LEAP_MIN`] get the exit of their own cell.
-#[target_feature(enable = "avx512f")]
+///
+/// It has [`march16`]'s target features, not just AVX-512 F: with fewer, `cells_at` (a
+/// closure of `march16`, which has them all) could not be inlined into it, nor it into
+/// `march16`, and every leap paid two calls with their vectors through memory (3–7 % of
+/// a frame, measured in `docs/results.md`).
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
 #[inline]
 fn leap_end(
     kv: __m512i,
