@@ -254,66 +254,73 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
     // read the corners of a lane in it instead of their own: their samples classify to
     // zero opacity whatever they read (the rule the leaps rest on), and the loads then hit
     // lines already on their way in. They count as skipped, not as samples taken.
-    let sample = |base: __m512i, f: [__m512; 3], need: __mmask16, acc: &mut [__m512; 4]| {
-        let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
-        let base = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
-        let [b0, b1] = halves(base);
-        // SAFETY: every lane's position is clamped into the data, so its cell's corners
-        // are inside `v`; past `limit` the gather of a wider word would read past the end.
-        let c: [__m512; 8] = unsafe {
-            let (h0, h1) = if _mm512_cmpgt_epi32_mask(base, limit) == 0 {
-                (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
-            } else {
-                (
-                    corners_exact(v, b0, tri.step),
-                    corners_exact(v, b1, tri.step),
-                )
+    // A macro rather than a closure, so that both loops get it inline: as a closure it
+    // was one call with the accumulators through memory per sample step, not inlined
+    // at two call sites (frames up to 10 % slower, `docs/results.md`).
+    macro_rules! sample {
+        ($base:expr, $f:expr, $need:expr, $acc:expr) => {{
+            let (base, f, need, acc): (__m512i, [__m512; 3], __mmask16, &mut [__m512; 4]) =
+                ($base, $f, $need, $acc);
+            let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
+            let base = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
+            let [b0, b1] = halves(base);
+            // SAFETY: every lane's position is clamped into the data, so its cell's corners
+            // are inside `v`; past `limit` the gather of a wider word would read past the end.
+            let c: [__m512; 8] = unsafe {
+                let (h0, h1) = if _mm512_cmpgt_epi32_mask(base, limit) == 0 {
+                    (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
+                } else {
+                    (
+                        corners_exact(v, b0, tri.step),
+                        corners_exact(v, b1, tri.step),
+                    )
+                };
+                std::array::from_fn(|i| join(h0[i], h1[i]))
             };
-            std::array::from_fn(|i| join(h0[i], h1[i]))
-        };
-        let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
-        let lerp = |a: __m512, b: __m512, w: __m512| {
-            _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), w))
-        };
-        let c00 = lerp(c000, c100, f[0]);
-        let c10 = lerp(c010, c110, f[0]);
-        let c01 = lerp(c001, c101, f[0]);
-        let c11 = lerp(c011, c111, f[0]);
-        let c0 = lerp(c00, c10, f[1]);
-        let c1 = lerp(c01, c11, f[1]);
-        let value = lerp(c0, c1, f[2]);
-        // As `ClassifierView::sample`: `vmaxps` returns its second operand (0) for NaN.
-        let x = _mm512_min_ps(
-            _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(value, lo), scale), zero),
-            bin_max,
-        );
-        let [bl, bh] = halves(_mm512_cvttps_epi32(x));
-        // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
-        let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
-        let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
-        let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
-        if opaque != 0 {
-            let mut s = [r, g, b];
-            if SHADE {
-                // `Cell::gradient`, lane-wise.
-                let (d00, d10) = (_mm512_sub_ps(c100, c000), _mm512_sub_ps(c110, c010));
-                let (d01, d11) = (_mm512_sub_ps(c101, c001), _mm512_sub_ps(c111, c011));
-                let (e0, e1) = (_mm512_sub_ps(c10, c00), _mm512_sub_ps(c11, c01));
-                let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
-                let g = [
-                    lerp(x0, x1, f[2]),
-                    lerp(e0, e1, f[2]),
-                    _mm512_sub_ps(c1, c0),
-                ];
-                let l = lambert16(g, spacing, dir);
-                s = s.map(|s| _mm512_mul_ps(s, l));
+            let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
+            let lerp = |a: __m512, b: __m512, w: __m512| {
+                _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), w))
+            };
+            let c00 = lerp(c000, c100, f[0]);
+            let c10 = lerp(c010, c110, f[0]);
+            let c01 = lerp(c001, c101, f[0]);
+            let c11 = lerp(c011, c111, f[0]);
+            let c0 = lerp(c00, c10, f[1]);
+            let c1 = lerp(c01, c11, f[1]);
+            let value = lerp(c0, c1, f[2]);
+            // As `ClassifierView::sample`: `vmaxps` returns its second operand (0) for NaN.
+            let x = _mm512_min_ps(
+                _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(value, lo), scale), zero),
+                bin_max,
+            );
+            let [bl, bh] = halves(_mm512_cvttps_epi32(x));
+            // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
+            let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
+            let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
+            let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
+            if opaque != 0 {
+                let mut s = [r, g, b];
+                if SHADE {
+                    // `Cell::gradient`, lane-wise.
+                    let (d00, d10) = (_mm512_sub_ps(c100, c000), _mm512_sub_ps(c110, c010));
+                    let (d01, d11) = (_mm512_sub_ps(c101, c001), _mm512_sub_ps(c111, c011));
+                    let (e0, e1) = (_mm512_sub_ps(c10, c00), _mm512_sub_ps(c11, c01));
+                    let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
+                    let g = [
+                        lerp(x0, x1, f[2]),
+                        lerp(e0, e1, f[2]),
+                        _mm512_sub_ps(c1, c0),
+                    ];
+                    let l = lambert16(g, spacing, dir);
+                    s = s.map(|s| _mm512_mul_ps(s, l));
+                }
+                let w = _mm512_sub_ps(_mm512_set1_ps(1.0), acc[3]);
+                for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
+                    *a = _mm512_mask_add_ps(*a, opaque, *a, _mm512_mul_ps(w, s));
+                }
             }
-            let w = _mm512_sub_ps(_mm512_set1_ps(1.0), acc[3]);
-            for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
-                *a = _mm512_mask_add_ps(*a, opaque, *a, _mm512_mul_ps(w, s));
-            }
-        }
-    };
+        }};
+    }
     if oblique(&pk.rays[has.trailing_zeros() as usize].d) {
         // Oblique rays: each lane at its own sample index. A lane in an empty cell leaps on
         // its own (by the rule of `leap_end`, lane-wise), a lane in an occupied one samples,
@@ -345,7 +352,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 next = _mm512_mask_blend_epi32(empty, next, kb);
             }
             if need != 0 {
-                sample(base, f, need, &mut acc);
+                sample!(base, f, need, &mut acc);
                 st.samples += u64::from(need.count_ones());
             }
             kv = _mm512_mask_blend_epi32(live, kv, next);
@@ -386,7 +393,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 continue;
             }
             let need = occ_bits & live;
-            sample(base, f, need, &mut acc);
+            sample!(base, f, need, &mut acc);
             st.samples += u64::from(need.count_ones());
             st.skipped += u64::from((live & !occ_bits).count_ones());
             k += 1;
