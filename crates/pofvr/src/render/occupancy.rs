@@ -81,13 +81,6 @@ impl OccupancyKey {
     }
 }
 
-/// `[min, max]` of `it`.
-fn min_max(it: impl Iterator<Item = [f32; 2]>) -> [f32; 2] {
-    it.fold([f32::INFINITY, f32::NEG_INFINITY], |[lo, hi], [a, b]| {
-        [lo.min(a), hi.max(b)]
-    })
-}
-
 /// The voxels occupancy cell `c` reads along an axis of `n` voxels.
 fn span(c: usize, n: usize) -> std::ops::RangeInclusive<usize> {
     let lo = c * CELL;
@@ -95,27 +88,18 @@ fn span(c: usize, n: usize) -> std::ops::RangeInclusive<usize> {
 }
 
 impl CellRanges {
-    /// Measures `volume`: separable passes (x within a slice, then y, then z over slices),
-    /// parallel over slices, so each voxel is read once.
+    /// Measures `volume`: separable passes, parallel over layers of cells: per layer, the
+    /// voxel-wise range over its slices (z), then per cell row over its rows (y), then per
+    /// cell over its columns (x). The first two are whole rows of minima and maxima in the
+    /// stored type, which vectorise; each voxel is read once, the slice two layers share
+    /// twice.
     #[must_use]
     pub fn new(volume: &Volume) -> Self {
         let dims = volume.dims();
         let cells = trilinear_cells(dims).map(|n| n.div_ceil(CELL));
-        let [nx, ny, _] = dims;
         let [cx, cy, cz] = cells;
-        // Per slice z: the x-then-y reduction, cx × cy ranges.
-        let slices: Vec<Vec<[f32; 2]>> = with_voxels!(volume.data(), v => {
-            v.par_chunks(nx * ny).map(|slice| reduce_slice(slice, nx, ny, cx, cy)).collect()
-        });
         let mut range = vec![[0f32; 2]; cx * cy * cz];
-        range
-            .par_chunks_mut(cx * cy)
-            .enumerate()
-            .for_each(|(z, out)| {
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = min_max(span(z, slices.len()).map(|s| slices[s][i]));
-                }
-            });
+        with_voxels!(volume.data(), v => measure_layers(v, dims, cells, &mut range));
         CellRanges {
             cells,
             range,
@@ -155,31 +139,55 @@ impl CellRanges {
     }
 }
 
-/// One slice's ranges over the x then y spans of every cell.
-fn reduce_slice<T: Voxel>(
-    slice: &[T],
-    nx: usize,
-    ny: usize,
-    cx: usize,
-    cy: usize,
-) -> Vec<[f32; 2]> {
-    let rows: Vec<[f32; 2]> = slice
-        .chunks_exact(nx)
-        .flat_map(|row| {
-            (0..cx).map(move |c| {
-                min_max(span(c, nx).map(|x| {
-                    let v = row[x].to_f32();
-                    [v, v]
-                }))
-            })
-        })
-        .collect();
-    (0..cy)
-        .flat_map(|c| {
-            let rows = &rows;
-            (0..cx).map(move |x| min_max(span(c, ny).map(|y| rows[y * cx + x])))
-        })
-        .collect()
+/// [`CellRanges::new`] for voxels of type `T`: `range` takes the cells x fastest.
+fn measure_layers<T: Voxel>(v: &[T], dims: [usize; 3], cells: [usize; 3], range: &mut [[f32; 2]]) {
+    let [nx, ny, nz] = dims;
+    let [cx, cy, _] = cells;
+    let slice = nx * ny;
+    range.par_chunks_mut(cx * cy).enumerate().for_each_init(
+        || (Vec::with_capacity(slice), Vec::with_capacity(slice)),
+        |(lo, hi): &mut (Vec<T>, Vec<T>), (z, out)| {
+            // z: the layer's slices, voxel by voxel.
+            let mut slices = span(z, nz).map(|s| &v[s * slice..][..slice]);
+            let first = slices.next().expect("a cell spans at least one slice");
+            lo.clear();
+            lo.extend_from_slice(first);
+            hi.clear();
+            hi.extend_from_slice(first);
+            for s in slices {
+                fold_rows(lo, hi, s, s);
+            }
+            for (c, out) in out.chunks_exact_mut(cx).enumerate() {
+                // y: the cell row's rows, folded into its first. Row `y0` is the last
+                // row of the cell row before, which has already read it.
+                let y0 = c * CELL;
+                for y in span(c, ny).skip(1) {
+                    let (ld, ls) = lo.split_at_mut(y * nx);
+                    let (hd, hs) = hi.split_at_mut(y * nx);
+                    let (ld, hd) = (&mut ld[y0 * nx..][..nx], &mut hd[y0 * nx..][..nx]);
+                    fold_rows(ld, hd, &ls[..nx], &hs[..nx]);
+                }
+                // x: each cell's columns.
+                let (l, h) = (&lo[y0 * nx..][..nx], &hi[y0 * nx..][..nx]);
+                for (x, o) in out.iter_mut().enumerate() {
+                    let s = span(x, nx);
+                    let a = l[s.clone()].iter().fold(l[*s.start()], |m, &q| m.min_of(q));
+                    let b = h[s.clone()].iter().fold(h[*s.start()], |m, &q| m.max_of(q));
+                    *o = [a.to_f32(), b.to_f32()];
+                }
+            }
+        },
+    );
+}
+
+/// `lo[i] = min(lo[i], slo[i])` and `hi[i] = max(hi[i], shi[i])`.
+fn fold_rows<T: Voxel>(lo: &mut [T], hi: &mut [T], slo: &[T], shi: &[T]) {
+    for (l, &x) in lo.iter_mut().zip(slo) {
+        *l = l.min_of(x);
+    }
+    for (h, &x) in hi.iter_mut().zip(shi) {
+        *h = h.max_of(x);
+    }
 }
 
 /// Which cells can hold a sample of nonzero opacity under one classification, and how far

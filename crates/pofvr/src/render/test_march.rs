@@ -417,6 +417,49 @@ fn cell_ranges_cover_the_one_voxel_apron() {
 }
 
 #[test]
+fn cell_ranges_match_brute_force_on_every_shape() {
+    // Odd sizes (a last cell shorter than four), one-voxel axes, signed voxels.
+    let mut rng = StdRng::seed_from_u64(31);
+    for dims in [
+        [9, 6, 11],
+        [1, 7, 5],
+        [13, 1, 1],
+        [4, 5, 2],
+        [2, 2, 2],
+        [17, 9, 1],
+    ] {
+        let n = dims[0] * dims[1] * dims[2];
+        let v: Vec<i16> = (0..n).map(|_| rng.gen_range(-900..900)).collect();
+        let vol = Volume::new(
+            dims,
+            [1.0; 3],
+            VoxelData::I16(Voxels::owned(v.clone())),
+            "r",
+        )
+        .unwrap();
+        let r = CellRanges::new(&vol);
+        let cells = r.cells();
+        let span = |c: usize, n: usize| 4 * c..=(4 * c + 4).min(n - 1);
+        for z in 0..cells[2] {
+            for y in 0..cells[1] {
+                for x in 0..cells[0] {
+                    let mut want = [f32::INFINITY, f32::NEG_INFINITY];
+                    for k in span(z, dims[2]) {
+                        for j in span(y, dims[1]) {
+                            for i in span(x, dims[0]) {
+                                let s = f32::from(v[(k * dims[1] + j) * dims[0] + i]);
+                                want = [want[0].min(s), want[1].max(s)];
+                            }
+                        }
+                    }
+                    assert_eq!(r.range([x, y, z]), want, "{dims:?} cell {:?}", [x, y, z]);
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn chessboard_distances_match_brute_force() {
     let mut rng = StdRng::seed_from_u64(16);
     for (dims, density) in [

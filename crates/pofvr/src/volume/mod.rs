@@ -105,6 +105,25 @@ pub trait Voxel: bytemuck::Pod + Send + Sync + 'static {
     fn swap_bytes(self) -> Self;
     /// The nearest stored value to `v` (rounded and clamped for integers).
     fn from_f32(v: f32) -> Self;
+    /// The lesser of two voxels (in the order of [`Voxel::to_f32`], which is monotone), in
+    /// the stored type: the range passes reduce whole rows of them, which vectorises.
+    #[must_use]
+    fn min_of(self, o: Self) -> Self;
+    /// The greater of two voxels (see [`Voxel::min_of`]).
+    #[must_use]
+    fn max_of(self, o: Self) -> Self;
+    /// `[min, max]` of `v` as floats; `[∞, −∞]` when `v` is empty. Reduced in the stored
+    /// type and converted once: the conversion is monotone, so the result is the same.
+    #[inline]
+    fn range_f32(v: &[Self]) -> [f32; 2] {
+        let Some((&first, rest)) = v.split_first() else {
+            return [f32::INFINITY, f32::NEG_INFINITY];
+        };
+        let (lo, hi) = rest
+            .iter()
+            .fold((first, first), |(lo, hi), &x| (lo.min_of(x), hi.max_of(x)));
+        [lo.to_f32(), hi.to_f32()]
+    }
 }
 
 macro_rules! voxel_int {
@@ -122,6 +141,14 @@ macro_rules! voxel_int {
             #[inline]
             fn from_f32(v: f32) -> Self {
                 v.round().clamp(<$t>::MIN as f32, <$t>::MAX as f32) as $t
+            }
+            #[inline(always)]
+            fn min_of(self, o: Self) -> Self {
+                Ord::min(self, o)
+            }
+            #[inline(always)]
+            fn max_of(self, o: Self) -> Self {
+                Ord::max(self, o)
             }
         }
     };
@@ -143,6 +170,14 @@ impl Voxel for f32 {
     #[inline]
     fn from_f32(v: f32) -> Self {
         v
+    }
+    #[inline(always)]
+    fn min_of(self, o: Self) -> Self {
+        self.min(o)
+    }
+    #[inline(always)]
+    fn max_of(self, o: Self) -> Self {
+        self.max(o)
     }
 }
 

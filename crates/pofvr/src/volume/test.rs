@@ -1030,3 +1030,25 @@ fn borrowed_voxels_read_the_owners_memory_and_keep_it_alive() {
         "the owner is let go"
     );
 }
+
+#[test]
+fn voxel_ranges_in_the_stored_type_equal_the_ranges_of_the_floats() {
+    fn check<T: super::Voxel>(v: &[T]) {
+        let want = v
+            .iter()
+            .fold([f32::INFINITY, f32::NEG_INFINITY], |[lo, hi], x| {
+                [lo.min(x.to_f32()), hi.max(x.to_f32())]
+            });
+        assert_eq!(T::range_f32(v), want, "{} voxels", v.len());
+    }
+    check::<u8>(&[]);
+    check::<u8>(&[7]);
+    check::<u8>(&[3, 255, 0, 9]);
+    check::<u16>(&[65535, 2, 40000]);
+    check::<i16>(&[-1024, 3071, -3, 0, i16::MIN, i16::MAX]);
+    check::<f32>(&[0.5, -2.25, 1e30, -1e-30]);
+    let long: Vec<i16> = (0..1000)
+        .map(|i| ((i * 7919) % 4001 - 2000) as i16)
+        .collect();
+    check(&long);
+}
