@@ -219,17 +219,24 @@ impl Occupancy {
         // The classifier's bin of `v` (`ClassifierView::sample`), monotone in `v`; not
         // clamp, as there: `max` maps NaN to bin 0.
         #[allow(clippy::manual_clamp)]
-        let bin = |v: f32| ((v - view.lo) * view.scale).max(0.0).min(BIN_MAX) as usize;
-        let cell: Vec<bool> = ranges
-            .range
-            .par_iter()
-            .map(|&[lo, hi]| {
-                // The rounding of the trilinear lerps stays within a few ulps of the
-                // largest corner; widen by more than that.
-                let m = lo.abs().max(hi.abs()) * (8.0 * f32::EPSILON) + f32::MIN_POSITIVE;
-                below[bin(hi + m) + 1] > below[bin(lo - m)]
-            })
-            .collect();
+        let bin = |v: f32| {
+            let b = ((v - view.lo) * view.scale).max(0.0).min(BIN_MAX);
+            // SAFETY: `b` is in [0, BIN_MAX] (NaN became 0), so it converts exactly; the
+            // checked conversion kept the loop from vectorising.
+            unsafe { b.to_int_unchecked::<u32>() as usize }
+        };
+        let mut cell = vec![false; ranges.range.len()];
+        // In runs of plain loops: one iterator step per cell took 1.6 times as long.
+        cell.par_chunks_mut(1 << 14)
+            .zip(ranges.range.par_chunks(1 << 14))
+            .for_each(|(out, range)| {
+                for (o, &[lo, hi]) in out.iter_mut().zip(range) {
+                    // The rounding of the trilinear lerps stays within a few ulps of the
+                    // largest corner; widen by more than that.
+                    let m = lo.abs().max(hi.abs()) * (8.0 * f32::EPSILON) + f32::MIN_POSITIVE;
+                    *o = below[bin(hi + m) + 1] > below[bin(lo - m)];
+                }
+            });
         let cells = ranges.cells;
         let to_occupied = chessboard(&cell, true, cells, EMPTY_CAP);
         let leap: Vec<u8> = cell
