@@ -171,9 +171,9 @@ fn measure_layers<T: Voxel>(v: &[T], dims: [usize; 3], cells: [usize; 3], range:
                 let (l, h) = (&lo[y0 * nx..][..nx], &hi[y0 * nx..][..nx]);
                 for (x, o) in out.iter_mut().enumerate() {
                     let s = span(x, nx);
-                    let a = l[s.clone()].iter().fold(l[*s.start()], |m, &q| m.min_of(q));
-                    let b = h[s.clone()].iter().fold(h[*s.start()], |m, &q| m.max_of(q));
-                    *o = [a.to_f32(), b.to_f32()];
+                    let a = l[s.clone()].iter().copied().reduce(T::min_of);
+                    let b = h[s].iter().copied().reduce(T::max_of);
+                    *o = [a, b].map(|q| q.expect("a cell spans a voxel").to_f32());
                 }
             }
         },

@@ -59,11 +59,6 @@ pub fn measure_own(
 }
 
 fn range_of<T: Voxel>(v: &[T]) -> ValueRange {
-    let (mut mn, mut mx) = (f32::INFINITY, f32::NEG_INFINITY);
-    for x in v {
-        let x = x.to_f32();
-        mn = mn.min(x);
-        mx = mx.max(x);
-    }
-    ValueRange { min: mn, max: mx }
+    let [min, max] = T::range_f32(v);
+    ValueRange { min, max }
 }

@@ -70,11 +70,9 @@ fn range_in<T: Voxel>(
     for z in lo[2]..=hi[2] {
         for y in lo[1]..=hi[1] {
             let row = n[0] * ((y - origin[1]) + n[1] * (z - origin[2])) - origin[0];
-            for x in &v[row + lo[0]..=row + hi[0]] {
-                let x = x.to_f32();
-                mn = mn.min(x);
-                mx = mx.max(x);
-            }
+            let [a, b] = T::range_f32(&v[row + lo[0]..=row + hi[0]]);
+            mn = mn.min(a);
+            mx = mx.max(b);
         }
     }
     ValueRange { min: mn, max: mx }
