@@ -1,7 +1,7 @@
 //! Renders one culled frame of a volume file to a PNG through the [`pofvr::Scene`] facade.
 //!
 //! ```text
-//! cargo run --release -p pofvr --example render_file -- [VOLUME TF.json] [--pof FILE.pof] [--out OUT.png]
+//! cargo run --release --example render_file -- [VOLUME TF.json] [--pof FILE.pof] [--out OUT.png]
 //! ```
 //!
 //! Without a volume it renders the built-in head phantom with its family, skin weighted

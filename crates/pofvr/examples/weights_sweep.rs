@@ -2,7 +2,7 @@
 //! renders its own weights, which the frame request carries, with no lock and no copy.
 //!
 //! ```text
-//! cargo run --release -p pofvr --example weights_sweep -- [BASIS] [STEPS]
+//! cargo run --release --example weights_sweep -- [BASIS] [STEPS]
 //! ```
 //!
 //! On the built-in head phantom with POFs built for it, prints per weight of basis `BASIS`
