@@ -620,8 +620,19 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
                 "max_abs_diff_vs_whole",
                 "vtk_over_pofvr",
                 "samples_per_s_per_core",
+                "march_steps",
+                "core_ns_per_step",
             ] {
                 assert!(e.get(k).is_some(), "engine lacks {k}: {e}");
+            }
+            // Only the march engine's packets take steps, and a step costs time.
+            let steps = e["march_steps"].as_u64().unwrap();
+            if e["engine"] != "march" {
+                assert_eq!(steps, 0, "{e}");
+            }
+            assert_eq!(e["core_ns_per_step"].is_null(), steps == 0, "{e}");
+            if steps > 0 {
+                assert!(e["core_ns_per_step"].as_f64().unwrap() > 0.0, "{e}");
             }
             assert!(e["vtk_over_pofvr"].is_null());
             assert!(e["samples_per_s_per_core"].as_f64().unwrap() > 0.0, "{e}");
@@ -695,6 +706,8 @@ fn the_engine_is_march_by_default_for_one_process_and_equals_whole() {
     assert!(s["skipped_samples"].as_u64().unwrap() > 0, "{s}");
     assert!(s["occupancy_ms"].is_number(), "{s}");
     let simd = s["march_simd"].as_str().unwrap_or_default();
+    let steps = s["march_steps"].as_u64().unwrap();
+    assert_eq!(steps > 0, ["avx512", "avx2"].contains(&simd), "{s}");
     assert!(
         ["avx512", "avx2", "walk-avx2", "sse2", "scalar"].contains(&simd),
         "{s}"

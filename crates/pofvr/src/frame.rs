@@ -443,6 +443,10 @@ pub struct FrameStats {
     pub samples_per_ray: f64,
     /// Lattice samples in empty space the march engine jumped over (0 for the others).
     pub skipped_samples: u64,
+    /// Steps of the march engine's packet loops ([`crate::render::MarchStats::packet_steps`]:
+    /// iterations in which a packet's rays sampled or leapt; 0 for the other engines and
+    /// where no packet loop runs).
+    pub march_steps: u64,
     /// The march engine's rebuild of the occupancy for the frame's weights, in
     /// milliseconds, inside `frame_ms` (0 for the others).
     pub occupancy_ms: f64,
@@ -737,6 +741,7 @@ pub(crate) fn march_with(
     let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut stats = FrameStats::from_rays(st.rays, start.elapsed().as_secs_f64(), "march");
     stats.skipped_samples = st.skipped_samples;
+    stats.march_steps = st.packet_steps;
     stats.occupancy_ms = occupancy_ms;
     stats.march_simd = Some(st.simd);
     // No brick is culled, and none is projected: every non-empty one counts as visible.

@@ -123,7 +123,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
     let threads = rayon::current_num_threads();
     println!("{w}x{h}, {threads} threads (pofvr and VTK), orthographic; medians");
     println!(
-        "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8} {:>12}",
+        "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8} {:>12} {:>9} {:>8}",
         "volume",
         "view",
         "shade",
@@ -135,13 +135,15 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
         "min",
         "x min",
         "PSNR dB",
-        "Msamp/s/core"
+        "Msamp/s/core",
+        "k steps",
+        "ns/step"
     );
     let opt = |x: Option<f64>, p: usize| x.map_or_else(|| "-".to_owned(), |v| format!("{v:.p$}"));
     for c in &cases {
         for e in &c.engines {
             println!(
-                "{:<28} {:>9} {:>5} {:>8} {:>9.1} {:>9} {:>10} {:>10.1} {:>8.1} {:>8.2} {:>8} {:>12.1}",
+                "{:<28} {:>9} {:>5} {:>8} {:>9.1} {:>9} {:>10} {:>10.1} {:>8.1} {:>8.2} {:>8} {:>12.1} {:>9} {:>8}",
                 short(&c.volume, 28),
                 format!("{},{}", c.view[0], c.view[1]),
                 if c.shade { "on" } else { "off" },
@@ -154,6 +156,12 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
                 e.samples_over_minimum,
                 opt(c.vtk.psnr_db, 1),
                 e.samples_per_s_per_core * 1e-6,
+                if e.march_steps > 0 {
+                    format!("{:.1}", e.march_steps as f64 * 1e-3)
+                } else {
+                    "-".to_owned()
+                },
+                opt(e.core_ns_per_step, 0),
             );
         }
     }

@@ -63,6 +63,10 @@ pub struct MarchStats {
     /// over, or, in a packet that steps on because another ray is in an occupied cell,
     /// passed without reading their corners (they are of zero opacity either way).
     pub skipped_samples: u64,
+    /// Steps of the packet loops: iterations in which at least one ray of a packet took a
+    /// sample or leapt (0 where no packet loop runs). A frame's time is about its steps
+    /// times the cost of one, which is how `docs/results.md` splits it.
+    pub packet_steps: u64,
     /// The loop that ran: "avx512" (packets of sixteen rays), "avx2" (packets of eight),
     /// or, where no packet loop runs, the walk around the one-ray loop
     /// ([`RayCaster::simd`]): "walk-avx2", "sse2" or "scalar". Empty before a frame.
@@ -73,6 +77,7 @@ impl std::ops::AddAssign for MarchStats {
     fn add_assign(&mut self, o: Self) {
         self.rays += o.rays;
         self.skipped_samples += o.skipped_samples;
+        self.packet_steps += o.packet_steps;
         if self.simd.is_empty() {
             self.simd = o.simd;
         }
@@ -236,6 +241,7 @@ impl RayCaster<'_> {
                         let ps = march(&tab, &mut pk)?;
                         st.rays.samples += ps.samples;
                         st.skipped_samples += ps.skipped;
+                        st.packet_steps += ps.steps;
                         for j in 0..N {
                             let (x, r) = (x0 + j % PW, r0 + j / PW);
                             if pk.k0[j] < pk.k1[j] {

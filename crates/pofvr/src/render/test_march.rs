@@ -71,6 +71,27 @@ fn compare(
                 "{st:?}"
             );
         }
+        // Every packet step samples at most one sample per lane, and samples or leaps over
+        // at least one; the walk takes no packet steps.
+        let lanes = match st.simd {
+            "avx512" => 16,
+            "avx2" => 8,
+            _ => 0,
+        };
+        if lanes == 0 {
+            assert_eq!(st.packet_steps, 0, "{st:?}");
+        } else {
+            assert!(st.packet_steps * lanes >= st.rays.samples, "{st:?}");
+            assert!(
+                st.packet_steps <= st.rays.samples + st.skipped_samples,
+                "{st:?}"
+            );
+            assert_eq!(
+                st.packet_steps > 0,
+                st.rays.samples + st.skipped_samples > 0,
+                "{st:?}"
+            );
+        }
         first.get_or_insert(st);
     }
     (ref_st, first.unwrap())

@@ -83,6 +83,13 @@ pub struct EngineFrame {
     /// Samples taken per second of the median frame and per worker thread: what one core
     /// gets through, set-up and empty-space walk included.
     pub samples_per_s_per_core: f64,
+    /// The march engine's packet-loop steps (`--stats`' `march_steps`; 0 for the other
+    /// engines and where no packet loop runs).
+    pub march_steps: u64,
+    /// Core time per packet-loop step: the median frame times the worker threads over
+    /// `march_steps` (`None` where there are none). With `march_steps` it splits a frame
+    /// into how many steps and what each costs.
+    pub core_ns_per_step: Option<f64>,
 }
 
 /// VTK's side of one frame: measured, or the reason it was not.
@@ -213,6 +220,11 @@ pub fn bench_frame(
                         samples_per_s_per_core: f.stats.samples as f64
                             / (median_ms * 1e-3)
                             / rayon::current_num_threads() as f64,
+                        march_steps: f.stats.march_steps,
+                        core_ns_per_step: (f.stats.march_steps > 0).then(|| {
+                            median_ms * 1e6 * rayon::current_num_threads() as f64
+                                / f.stats.march_steps as f64
+                        }),
                     });
                 }
                 cases.push(FrameCase {

@@ -61,11 +61,13 @@ pub(crate) struct PacketTables<'t> {
     pub(crate) cells: [i32; 3],
 }
 
-/// What a packet took: lane samples marched, and lane samples leapt over.
+/// What a packet took: lane samples marched, lane samples leapt over, and the loop's
+/// steps (iterations that sampled or leapt for at least one lane).
 #[derive(Clone, Copy, Default)]
 pub(crate) struct PacketStats {
     pub(crate) samples: u64,
     pub(crate) skipped: u64,
+    pub(crate) steps: u64,
 }
 
 /// Lanes of `m` (a comparison mask) as bits.
@@ -261,6 +263,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             let kb = _mm256_min_epi32(kb, blend_i(big, k0v, pending));
             let next = hmin(kb).max(k + 1);
             st.skipped += u64::from(live_bits.count_ones()) * (next - k) as u64;
+            st.steps += 1;
             k = next;
             continue;
         }
@@ -306,6 +309,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
         let [r, g, b, alpha] = unsafe { rgba8(rgba, bin) };
         st.samples += u64::from(need_bits.count_ones());
         st.skipped += u64::from((live_bits & !occ_bits).count_ones());
+        st.steps += 1;
         let opaque = _mm256_and_ps(
             _mm256_castsi256_ps(need),
             _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),

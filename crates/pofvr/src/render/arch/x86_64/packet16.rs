@@ -340,6 +340,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
             let empty = live & !occ_bits;
             let need = live & occ_bits;
             let mut next = _mm512_add_epi32(kv, one);
+            st.steps += 1;
             if empty != 0 {
                 // SAFETY: `lv` holds sixteen i32.
                 let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
@@ -389,6 +390,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 let kb = _mm512_min_epi32(kb, _mm512_mask_blend_epi32(pending, big, k0v));
                 let next = _mm512_reduce_min_epi32(kb).max(k + 1);
                 st.skipped += u64::from(live.count_ones()) * (next - k) as u64;
+                st.steps += 1;
                 k = next;
                 continue;
             }
@@ -396,6 +398,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
             sample!(base, f, need, &mut acc);
             st.samples += u64::from(need.count_ones());
             st.skipped += u64::from((live & !occ_bits).count_ones());
+            st.steps += 1;
             k += 1;
         }
     }
