@@ -156,11 +156,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
                 e.samples_over_minimum,
                 opt(c.vtk.psnr_db, 1),
                 e.samples_per_s_per_core * 1e-6,
-                if e.march_steps > 0 {
-                    format!("{:.1}", e.march_steps as f64 * 1e-3)
-                } else {
-                    "-".to_owned()
-                },
+                opt((e.march_steps > 0).then_some(e.march_steps as f64 * 1e-3), 1),
                 opt(e.core_ns_per_step, 0),
             );
         }

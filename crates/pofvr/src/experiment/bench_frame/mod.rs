@@ -198,6 +198,7 @@ pub fn bench_frame(
                 };
                 progress.inc();
                 let mut engines = Vec::new();
+                let threads = rayon::current_num_threads() as f64;
                 for ((engine, t), f) in FRAME_ENGINES.iter().zip(times).zip(&frames) {
                     let median_ms = median(t);
                     let diff = reference.max_abs_diff(&f.image).unwrap_or(f32::INFINITY);
@@ -219,12 +220,10 @@ pub fn bench_frame(
                         vtk_over_pofvr: vtk.as_ref().ok().map(|v| v.median_ms / median_ms),
                         samples_per_s_per_core: f.stats.samples as f64
                             / (median_ms * 1e-3)
-                            / rayon::current_num_threads() as f64,
+                            / threads,
                         march_steps: f.stats.march_steps,
-                        core_ns_per_step: (f.stats.march_steps > 0).then(|| {
-                            median_ms * 1e6 * rayon::current_num_threads() as f64
-                                / f.stats.march_steps as f64
-                        }),
+                        core_ns_per_step: (f.stats.march_steps > 0)
+                            .then(|| median_ms * 1e6 * threads / f.stats.march_steps as f64),
                     });
                 }
                 cases.push(FrameCase {

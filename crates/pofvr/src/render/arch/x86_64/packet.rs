@@ -202,6 +202,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             k = hmin(blend_i(big, k0v, pending));
             continue;
         }
+        // A live lane: this iteration samples or leaps.
+        st.steps += 1;
         let t = _mm256_set1_ps(k as f32 * step);
         let mut base = _mm256_setzero_si256();
         let mut f = [zero; 3];
@@ -263,7 +265,6 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             let kb = _mm256_min_epi32(kb, blend_i(big, k0v, pending));
             let next = hmin(kb).max(k + 1);
             st.skipped += u64::from(live_bits.count_ones()) * (next - k) as u64;
-            st.steps += 1;
             k = next;
             continue;
         }
@@ -309,7 +310,6 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
         let [r, g, b, alpha] = unsafe { rgba8(rgba, bin) };
         st.samples += u64::from(need_bits.count_ones());
         st.skipped += u64::from((live_bits & !occ_bits).count_ones());
-        st.steps += 1;
         let opaque = _mm256_and_ps(
             _mm256_castsi256_ps(need),
             _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),

@@ -378,6 +378,8 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 k = hmin(pending, k0v);
                 continue;
             }
+            // A live lane: this iteration samples or leaps.
+            st.steps += 1;
             let t = _mm512_set1_ps(k as f32 * step);
             let (base, f, cell, idx) = locate(t);
             lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
@@ -390,7 +392,6 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 let kb = _mm512_min_epi32(kb, _mm512_mask_blend_epi32(pending, big, k0v));
                 let next = _mm512_reduce_min_epi32(kb).max(k + 1);
                 st.skipped += u64::from(live.count_ones()) * (next - k) as u64;
-                st.steps += 1;
                 k = next;
                 continue;
             }
@@ -398,7 +399,6 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
             sample!(base, f, need, &mut acc);
             st.samples += u64::from(need.count_ones());
             st.skipped += u64::from((live & !occ_bits).count_ones());
-            st.steps += 1;
             k += 1;
         }
     }
