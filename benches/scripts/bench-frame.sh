@@ -2,9 +2,10 @@
 # The `bench frame` report of docs/results.md: every catalogued volume/family pair and the
 # generated 1728-slice chest CT, VTK in the same run.
 #   benches/scripts/bench-frame.sh OUT.json [POFVR_BINARY]
-# Environment: DATA (default ../shared/data), BIG (the folder benches/volumes/chest1728.py
-# wrote, default /work/big/chest1728), PEER_PYTHON (a Python with vtk, numpy and pillow),
-# PEER (default ../shared/peer/vtk_render.py).
+# Environment: ROUNDS (rounds per frame, each with its own VTK process, default 3), DATA
+# (default ../shared/data), BIG (the folder benches/volumes/chest1728.py wrote, default
+# /work/big/chest1728), PEER_PYTHON (a Python with vtk, numpy and pillow), PEER (default
+# ../shared/peer/vtk_render.py).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 out=${1:?usage: bench-frame.sh OUT.json [pofvr]}
@@ -20,6 +21,6 @@ big=${BIG:-/work/big/chest1728}
   --volume "$D/ironprot/ironprot.nhdr" --tf tfs/sim-isobands.json \
   --volume "$D/hydrogen/hydrogen.nhdr" --tf tfs/sim-hydrogen.json \
   --volume "$big/chest1728.nhdr" --tf tfs/ct-chest-skin-bone.json \
-  --size 512x512 --reps 5 \
+  --size 512x512 --reps 5 --rounds "${ROUNDS:-3}" \
   --peer-python "${PEER_PYTHON:-/work/venv-vtk/bin/python}" \
   --peer-script "${PEER:-../shared/peer/vtk_render.py}" --json "$out"

@@ -356,6 +356,12 @@ pub(crate) struct BenchFrameArgs {
     /// > default: 5
     #[arg(long, default_value_t = 5)]
     pub(crate) peer_repeat: usize,
+    /// Rounds per frame: every engine's --reps, then a VTK process of its own, this many
+    /// times over; the table gives medians over rounds, the ratio the median of the rounds'
+    /// ratios, and the JSON every round's median.
+    /// > default: 1
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=100))]
+    pub(crate) rounds: u16,
     /// Report file (JSON); a table is printed too.
     /// > default: bench-frame.json
     #[arg(long, default_value = "bench-frame.json")]

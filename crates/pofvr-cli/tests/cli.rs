@@ -570,6 +570,8 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
             "40x32",
             "--reps",
             "1",
+            "--rounds",
+            "2",
             "--json",
             "f.json",
         ],
@@ -581,6 +583,10 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("f.json")).unwrap()).unwrap();
     assert_eq!(r["image"], serde_json::json!([40, 32]));
+    assert_eq!(
+        (r["reps"].as_u64(), r["rounds"].as_u64()),
+        (Some(1), Some(2))
+    );
     assert_eq!(
         r["engines"],
         serde_json::json!(["whole", "bricks", "march"])
@@ -606,6 +612,7 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
             .unwrap()
             .contains("--peer-python"));
         assert!(c["vtk"]["median_ms"].is_null() && c["vtk"]["psnr_db"].is_null());
+        assert_eq!(c["vtk"]["round_ms"], serde_json::json!([]));
         let min = c["min_samples_per_ray"].as_f64().unwrap();
         assert!(min > 0.0);
         let engines = c["engines"].as_array().unwrap();
@@ -614,6 +621,7 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
             for k in [
                 "engine",
                 "median_ms",
+                "round_ms",
                 "samples",
                 "samples_per_ray",
                 "samples_over_minimum",
@@ -635,6 +643,15 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
                 assert!(e["core_ns_per_step"].as_f64().unwrap() > 0.0, "{e}");
             }
             assert!(e["vtk_over_pofvr"].is_null());
+            // One median per round, and the frame's median among them.
+            let rounds: Vec<f64> = e["round_ms"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect();
+            assert_eq!(rounds.len(), 2, "{e}");
+            assert!(rounds.contains(&e["median_ms"].as_f64().unwrap()), "{e}");
             assert!(e["samples_per_s_per_core"].as_f64().unwrap() > 0.0, "{e}");
             // No engine takes fewer samples than the minimum.
             assert!(e["samples_per_ray"].as_f64().unwrap() >= min, "{e}");

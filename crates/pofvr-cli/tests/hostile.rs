@@ -91,6 +91,18 @@ fn non_finite_bench_and_experiment_views_are_rejected() {
 }
 
 #[test]
+fn bench_frame_rounds_out_of_range_are_rejected_naming_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    for r in ["0", "101", "-1", "x"] {
+        let flag = format!("--rounds={r}");
+        let args = ["bench", "frame", flag.as_str()];
+        let o = pofvr(&args, dir.path());
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("--rounds"), "{args:?}: {}", stderr(&o));
+    }
+}
+
+#[test]
 fn bad_raw_spacing_is_rejected_naming_the_flag() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("v.raw"), [0u8; 8]).unwrap();

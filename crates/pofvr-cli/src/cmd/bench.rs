@@ -116,12 +116,17 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
         views,
         size: (w, h),
         reps: a.reps,
+        rounds: usize::from(a.rounds),
         peer,
     };
     let bars = Bars::new(ui);
     let cases = pofvr::experiment::bench_frame(&volumes, &bench, &bars)?;
     let threads = rayon::current_num_threads();
-    println!("{w}x{h}, {threads} threads (pofvr and VTK), orthographic; medians");
+    let rounds = a.rounds;
+    println!(
+        "{w}x{h}, {threads} threads (pofvr and VTK), orthographic; medians of {} rep(s) per round, {rounds} round(s)",
+        a.reps.max(1)
+    );
     println!(
         "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8} {:>12} {:>9} {:>8}",
         "volume",
@@ -173,6 +178,8 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
         "threads": threads,
         "image": [w, h],
         "projection": "orthographic",
+        "reps": a.reps.max(1),
+        "rounds": rounds,
         "engines": pofvr::experiment::FRAME_ENGINES.map(|e| e.name()),
         "cases": cases,
     });

@@ -68,8 +68,10 @@ pub struct FrameVolume {
 pub struct EngineFrame {
     /// The engine.
     pub engine: FrameEngine,
-    /// Median frame time.
+    /// Median frame time: the median of `round_ms`.
     pub median_ms: f64,
+    /// The median frame time of each round ([`FrameBench::rounds`]), in order.
+    pub round_ms: Vec<f64>,
     /// Samples taken.
     pub samples: u64,
     /// Samples per ray that meets the volume.
@@ -78,7 +80,9 @@ pub struct EngineFrame {
     pub samples_over_minimum: f64,
     /// Largest per-channel difference from the first engine's image.
     pub max_abs_diff_vs_whole: f32,
-    /// VTK's frame time over this engine's, when VTK was measured.
+    /// VTK's frame time over this engine's, when VTK was measured: the median over rounds
+    /// of each round's ratio, so that a machine that speeds up or slows down between
+    /// rounds moves both sides of a ratio together.
     pub vtk_over_pofvr: Option<f64>,
     /// Samples taken per second of the median frame and per worker thread: what one core
     /// gets through, set-up and empty-space walk included.
@@ -101,8 +105,12 @@ pub struct VtkCase {
     pub reason: Option<String>,
     /// The VTK version.
     pub version: Option<String>,
-    /// Median re-render time.
+    /// Median re-render time: the median of `round_ms`.
     pub median_ms: Option<f64>,
+    /// The median re-render time of each round's VTK process, in order. VTK's times move
+    /// by up to a third from one process to the next on the same frame (`docs/results.md`,
+    /// stop 34), more than they move within one.
+    pub round_ms: Vec<f64>,
     /// The first render.
     pub first_render_ms: Option<f64>,
     /// PSNR of VTK's float image against the whole-volume image (dB, peak 1).
@@ -135,8 +143,12 @@ pub struct FrameBench {
     pub views: Vec<[f64; 2]>,
     /// Image size.
     pub size: (u32, u32),
-    /// Repetitions per engine (at least one; the median is reported).
+    /// Repetitions per engine and round (at least one; the median is reported).
     pub reps: usize,
+    /// Rounds (at least one): each frame is measured this many times over, every engine's
+    /// repetitions then a VTK process of its own, and the rounds' medians and ratios are
+    /// reported with their median.
+    pub rounds: usize,
     /// The VTK peer, or why there is none.
     pub peer: Result<VtkPeer, String>,
 }
@@ -152,7 +164,8 @@ pub fn bench_frame(
     bench: &FrameBench,
     progress: &dyn Progress,
 ) -> Result<Vec<FrameCase>, ExperimentError> {
-    let per_frame = (FRAME_ENGINES.len() * bench.reps.max(1) + 1) as u64;
+    let rounds = bench.rounds.max(1);
+    let per_frame = ((FRAME_ENGINES.len() * bench.reps.max(1) + 1) * rounds) as u64;
     progress.begin(
         "bench frame",
         volumes.len() as u64 * bench.views.len() as u64 * 2 * per_frame,
@@ -173,17 +186,31 @@ pub fn bench_frame(
             let min_per_ray = min_samples as f64 / rays.max(1) as f64;
             for shade in [false, true] {
                 let req = FrameRequest::new(&cam).shade(shade);
-                let mut times = vec![Vec::new(); FRAME_ENGINES.len()];
+                // Per engine, the median of each round.
+                let mut round_ms = vec![Vec::new(); FRAME_ENGINES.len()];
                 let mut frames: Vec<Option<Frame>> = vec![None; FRAME_ENGINES.len()];
-                for _ in 0..bench.reps.max(1) {
-                    // Interleaved, so that every engine sees the same machine.
-                    for (k, engine) in FRAME_ENGINES.iter().enumerate() {
-                        let t = Instant::now();
-                        let f = engine.render(scene, &req)?;
-                        times[k].push(t.elapsed().as_secs_f64() * 1e3);
-                        frames[k] = Some(f);
-                        progress.inc();
+                let mut vtk_rounds = Vec::new();
+                for _ in 0..rounds {
+                    let mut times = vec![Vec::new(); FRAME_ENGINES.len()];
+                    for _ in 0..bench.reps.max(1) {
+                        // Interleaved, so that every engine sees the same machine.
+                        for (k, engine) in FRAME_ENGINES.iter().enumerate() {
+                            let t = Instant::now();
+                            let f = engine.render(scene, &req)?;
+                            times[k].push(t.elapsed().as_secs_f64() * 1e3);
+                            frames[k] = Some(f);
+                            progress.inc();
+                        }
                     }
+                    for (r, t) in round_ms.iter_mut().zip(times) {
+                        r.push(median(t));
+                    }
+                    vtk_rounds.push(match (&bench.peer, &peer_volume) {
+                        (Ok(peer), Ok(pv)) => peer.render(pv, scene.family(), weights, &cam, shade),
+                        (_, Err(e)) => Err(e.clone()),
+                        (Err(e), _) => Err(e.clone()),
+                    });
+                    progress.inc();
                 }
                 let frames: Vec<Frame> = frames.into_iter().flatten().collect();
                 let reference = &frames[0].image;
@@ -191,16 +218,16 @@ pub fn bench_frame(
                 // what lies in front, so a pixel may take up to `1 − ert` more than the whole
                 // ray, which stops once: that, plus float rounding, is what engines may differ by.
                 let tolerance = (1.0 - scene.early_termination()).max(0.0) + 1e-5;
-                let vtk = match (&bench.peer, &peer_volume) {
-                    (Ok(peer), Ok(pv)) => peer.render(pv, scene.family(), weights, &cam, shade),
-                    (_, Err(e)) => Err(e.clone()),
-                    (Err(e), _) => Err(e.clone()),
-                };
-                progress.inc();
+                // Every round's VTK frame, or the first reason one failed.
+                let vtk: Result<Vec<VtkFrame>, String> = vtk_rounds.into_iter().collect();
+                let vtk_ms: Option<Vec<f64>> = vtk
+                    .as_ref()
+                    .ok()
+                    .map(|v| v.iter().map(|f| f.median_ms).collect());
                 let mut engines = Vec::new();
                 let threads = rayon::current_num_threads() as f64;
-                for ((engine, t), f) in FRAME_ENGINES.iter().zip(times).zip(&frames) {
-                    let median_ms = median(t);
+                for ((engine, rt), f) in FRAME_ENGINES.iter().zip(round_ms).zip(&frames) {
+                    let median_ms = median(rt.clone());
                     let diff = reference.max_abs_diff(&f.image).unwrap_or(f32::INFINITY);
                     if diff > tolerance {
                         return Err(ExperimentError::Check(format!(
@@ -213,11 +240,14 @@ pub fn bench_frame(
                     engines.push(EngineFrame {
                         engine: *engine,
                         median_ms,
+                        vtk_over_pofvr: vtk_ms
+                            .as_ref()
+                            .map(|v| median(v.iter().zip(&rt).map(|(v, p)| v / p).collect())),
+                        round_ms: rt,
                         samples: f.stats.samples,
                         samples_per_ray: per_ray,
                         samples_over_minimum: per_ray / min_per_ray,
                         max_abs_diff_vs_whole: diff,
-                        vtk_over_pofvr: vtk.as_ref().ok().map(|v| v.median_ms / median_ms),
                         samples_per_s_per_core: f.stats.samples as f64
                             / (median_ms * 1e-3)
                             / threads,
@@ -242,21 +272,37 @@ pub fn bench_frame(
     Ok(cases)
 }
 
-fn vtk_case(vtk: Result<VtkFrame, String>, reference: &Image) -> VtkCase {
+/// VTK's side of a frame from its rounds (at least one): times over all of them, the
+/// version, first render and image of the first.
+fn vtk_case(vtk: Result<Vec<VtkFrame>, String>, reference: &Image) -> VtkCase {
     match vtk {
-        Ok(v) => VtkCase {
-            measured: true,
-            reason: None,
-            version: v.vtk,
-            median_ms: Some(v.median_ms),
-            first_render_ms: v.first_render_ms,
-            psnr_db: npy::psnr(&v.image, reference),
+        Ok(v) if !v.is_empty() => {
+            let round_ms: Vec<f64> = v.iter().map(|f| f.median_ms).collect();
+            VtkCase {
+                measured: true,
+                reason: None,
+                version: v[0].vtk.clone(),
+                median_ms: Some(median(round_ms.clone())),
+                round_ms,
+                first_render_ms: v[0].first_render_ms,
+                psnr_db: npy::psnr(&v[0].image, reference),
+            }
+        }
+        Ok(_) => VtkCase {
+            measured: false,
+            reason: Some("no rounds".to_owned()),
+            version: None,
+            median_ms: None,
+            round_ms: Vec::new(),
+            first_render_ms: None,
+            psnr_db: None,
         },
         Err(reason) => VtkCase {
             measured: false,
             reason: Some(reason),
             version: None,
             median_ms: None,
+            round_ms: Vec::new(),
             first_render_ms: None,
             psnr_db: None,
         },

@@ -72,3 +72,104 @@ fn the_minimum_counts_only_visible_samples_before_termination() {
     let (_, none) = minimum_samples(&scene, &[0.0, 0.0], &cam);
     assert_eq!(none, 0);
 }
+
+/// A stand-in for the VTK peer, run as `sh SCRIPT ARGS…`: it writes `img` as its image and,
+/// round after round, 10, 30 and 20 ms as its median re-render time.
+#[cfg(unix)]
+fn fake_peer(dir: &std::path::Path, img: &[u8]) -> VtkPeer {
+    std::fs::write(dir.join("img.npy"), img).unwrap();
+    let d = dir.display();
+    let script = format!(
+        r#"while [ $# -gt 0 ]; do
+  case "$1" in --out-npy) npy=$2; shift;; --json) json=$2; shift;; esac; shift
+done
+n=$(cat "{d}/count" 2>/dev/null || echo 0); echo $((n + 1)) > "{d}/count"
+case $((n % 3)) in 0) t=0.010;; 1) t=0.030;; *) t=0.020;; esac
+cp "{d}/img.npy" "$npy"
+printf '{{"vtk": "fake", "median_rerender_s": %s, "first_render_s": 0.5}}' $t > "$json"
+"#
+    );
+    let path = dir.join("peer.sh");
+    std::fs::write(&path, script).unwrap();
+    VtkPeer {
+        python: "/bin/sh".into(),
+        script: path,
+        threads: 1,
+        repeat: 1,
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn rounds_run_a_vtk_process_each_and_report_medians_and_the_median_ratio() {
+    let dir = std::env::temp_dir().join(format!("pofvr-rounds-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, h) = (24, 20);
+    let img = npy_bytes(h, w, &vec![0.25; h * w * 4]);
+    let scene = Scene::builder(
+        Phantom::SheppLogan.generate(24),
+        families::for_phantom(Phantom::SheppLogan),
+    )
+    .build()
+    .unwrap();
+    let volumes = [FrameVolume {
+        name: "phantom".into(),
+        scene,
+    }];
+    let bench = FrameBench {
+        views: vec![[30.0, 20.0]],
+        size: (w as u32, h as u32),
+        reps: 1,
+        rounds: 3,
+        peer: Ok(fake_peer(&dir, &img)),
+    };
+    let cases = bench_frame(&volumes, &bench, &super::super::NoProgress).unwrap();
+    // One view, unshaded and shaded: six VTK processes in all.
+    assert_eq!(cases.len(), 2);
+    let count = std::fs::read_to_string(dir.join("count")).unwrap();
+    assert_eq!(count.trim(), "6");
+    for c in &cases {
+        assert!(c.vtk.measured, "{:?}", c.vtk.reason);
+        assert_eq!(c.vtk.version.as_deref(), Some("fake"));
+        let r: Vec<f64> = c.vtk.round_ms.iter().map(|x| x.round()).collect();
+        assert_eq!(r, [10.0, 30.0, 20.0]);
+        assert!((c.vtk.median_ms.unwrap() - 20.0).abs() < 1e-9);
+        assert!(c.vtk.psnr_db.is_some());
+        for e in &c.engines {
+            assert_eq!(e.round_ms.len(), 3);
+            assert_eq!(e.median_ms, median(e.round_ms.clone()));
+            let ratios: Vec<f64> = c
+                .vtk
+                .round_ms
+                .iter()
+                .zip(&e.round_ms)
+                .map(|(v, p)| v / p)
+                .collect();
+            assert_eq!(e.vtk_over_pofvr, Some(median(ratios)));
+        }
+    }
+    // A peer that fails in a round leaves VTK unmeasured, with the reason.
+    let bench = FrameBench {
+        rounds: 2,
+        peer: Ok(VtkPeer {
+            script: dir.join("missing.sh"),
+            ..fake_peer(&dir, &img)
+        }),
+        ..bench
+    };
+    let cases = bench_frame(&volumes, &bench, &super::super::NoProgress).unwrap();
+    for c in &cases {
+        assert!(!c.vtk.measured);
+        assert!(
+            c.vtk.reason.as_deref().unwrap().contains("missing.sh"),
+            "{:?}",
+            c.vtk.reason
+        );
+        assert!(c.vtk.round_ms.is_empty());
+        assert!(c
+            .engines
+            .iter()
+            .all(|e| e.vtk_over_pofvr.is_none() && e.round_ms.len() == 2));
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
