@@ -108,7 +108,7 @@ pub struct VtkCase {
     /// Median re-render time: the median of `round_ms`.
     pub median_ms: Option<f64>,
     /// The median re-render time of each round's VTK process, in order. VTK's times move
-    /// by up to a third from one process to the next on the same frame (`docs/results.md`,
+    /// by up to half from one process to the next on the same frame (`docs/results.md`,
     /// stop 34), more than they move within one.
     pub round_ms: Vec<f64>,
     /// The first render.
