@@ -219,11 +219,8 @@ pub fn bench_frame(
                 // ray, which stops once: that, plus float rounding, is what engines may differ by.
                 let tolerance = (1.0 - scene.early_termination()).max(0.0) + 1e-5;
                 // Every round's VTK frame, or the first reason one failed.
-                let vtk: Result<Vec<VtkFrame>, String> = vtk_rounds.into_iter().collect();
-                let vtk_ms: Option<Vec<f64>> = vtk
-                    .as_ref()
-                    .ok()
-                    .map(|v| v.iter().map(|f| f.median_ms).collect());
+                let vtk = vtk_case(vtk_rounds.into_iter().collect(), reference);
+                let vtk_ms = vtk.measured.then_some(&vtk.round_ms);
                 let mut engines = Vec::new();
                 let threads = rayon::current_num_threads() as f64;
                 for ((engine, rt), f) in FRAME_ENGINES.iter().zip(round_ms).zip(&frames) {
@@ -241,7 +238,6 @@ pub fn bench_frame(
                         engine: *engine,
                         median_ms,
                         vtk_over_pofvr: vtk_ms
-                            .as_ref()
                             .map(|v| median(v.iter().zip(&rt).map(|(v, p)| v / p).collect())),
                         round_ms: rt,
                         samples: f.stats.samples,
@@ -263,7 +259,7 @@ pub fn bench_frame(
                     rays,
                     min_samples_per_ray: min_per_ray,
                     engines,
-                    vtk: vtk_case(vtk, reference),
+                    vtk,
                 });
             }
         }
@@ -275,8 +271,14 @@ pub fn bench_frame(
 /// VTK's side of a frame from its rounds (at least one): times over all of them, the
 /// version, first render and image of the first.
 fn vtk_case(vtk: Result<Vec<VtkFrame>, String>, reference: &Image) -> VtkCase {
+    // `bench_frame` runs at least one round; an empty list would be a reason, not a number.
+    let vtk = vtk.and_then(|v| {
+        (!v.is_empty())
+            .then_some(v)
+            .ok_or("no VTK rounds".to_owned())
+    });
     match vtk {
-        Ok(v) if !v.is_empty() => {
+        Ok(v) => {
             let round_ms: Vec<f64> = v.iter().map(|f| f.median_ms).collect();
             VtkCase {
                 measured: true,
@@ -288,15 +290,6 @@ fn vtk_case(vtk: Result<Vec<VtkFrame>, String>, reference: &Image) -> VtkCase {
                 psnr_db: npy::psnr(&v[0].image, reference),
             }
         }
-        Ok(_) => VtkCase {
-            measured: false,
-            reason: Some("no rounds".to_owned()),
-            version: None,
-            median_ms: None,
-            round_ms: Vec::new(),
-            first_render_ms: None,
-            psnr_db: None,
-        },
         Err(reason) => VtkCase {
             measured: false,
             reason: Some(reason),
