@@ -601,6 +601,7 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
             "shade",
             "rays",
             "min_samples_per_ray",
+            "cell_floor_samples_per_ray",
             "engines",
             "vtk",
         ] {
@@ -615,6 +616,8 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
         assert_eq!(c["vtk"]["round_ms"], serde_json::json!([]));
         let min = c["min_samples_per_ray"].as_f64().unwrap();
         assert!(min > 0.0);
+        let floor = c["cell_floor_samples_per_ray"].as_f64().unwrap();
+        assert!(floor >= min, "floor {floor} below the minimum {min}");
         let engines = c["engines"].as_array().unwrap();
         assert_eq!(engines.len(), 3);
         for e in engines {
@@ -625,6 +628,7 @@ fn bench_frame_without_the_peer_reports_vtk_not_measured_and_every_engine() {
                 "samples",
                 "samples_per_ray",
                 "samples_over_minimum",
+                "samples_over_cell_floor",
                 "max_abs_diff_vs_whole",
                 "vtk_over_pofvr",
                 "samples_per_s_per_core",

@@ -128,7 +128,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
         a.reps.max(1)
     );
     println!(
-        "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8} {:>12} {:>9} {:>8}",
+        "{:<28} {:>9} {:>5} {:>8} {:>9} {:>9} {:>10} {:>10} {:>8} {:>8} {:>8} {:>8} {:>12} {:>9} {:>8}",
         "volume",
         "view",
         "shade",
@@ -139,6 +139,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
         "samp/ray",
         "min",
         "x min",
+        "x floor",
         "PSNR dB",
         "Msamp/s/core",
         "k steps",
@@ -148,7 +149,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
     for c in &cases {
         for e in &c.engines {
             println!(
-                "{:<28} {:>9} {:>5} {:>8} {:>9.1} {:>9} {:>10} {:>10.1} {:>8.1} {:>8.2} {:>8} {:>12.1} {:>9} {:>8}",
+                "{:<28} {:>9} {:>5} {:>8} {:>9.1} {:>9} {:>10} {:>10.1} {:>8.1} {:>8.2} {:>8.2} {:>8} {:>12.1} {:>9} {:>8}",
                 short(&c.volume, 28),
                 format!("{},{}", c.view[0], c.view[1]),
                 if c.shade { "on" } else { "off" },
@@ -159,6 +160,7 @@ pub(crate) fn frame(a: &BenchFrameArgs, ui: &Ui) -> Result<()> {
                 e.samples_per_ray,
                 c.min_samples_per_ray,
                 e.samples_over_minimum,
+                e.samples_over_cell_floor,
                 opt(c.vtk.psnr_db, 1),
                 e.samples_per_s_per_core * 1e-6,
                 opt((e.march_steps > 0).then_some(e.march_steps as f64 * 1e-3), 1),

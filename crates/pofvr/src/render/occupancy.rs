@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
-use super::transfer_function::{Classifier, BIN_MAX, TF_BINS};
+use super::transfer_function::{Classifier, ClassifierView, BIN_MAX, TF_BINS};
 use crate::volume::{Volume, Voxel};
 use crate::with_voxels;
 
@@ -190,6 +190,44 @@ fn fold_rows<T: Voxel>(lo: &mut [T], hi: &mut [T], slo: &[T], shi: &[T]) {
     }
 }
 
+/// Which value ranges can hold a sample of nonzero opacity under one classification: the
+/// one test behind [`Occupancy`] and `bench frame`'s floor of samples per ray.
+pub(crate) struct OpaqueBins<'c> {
+    view: ClassifierView<'c>,
+    /// Bins of nonzero opacity below each bin.
+    below: Vec<u32>,
+}
+
+impl<'c> OpaqueBins<'c> {
+    pub(crate) fn new(cls: &'c Classifier) -> Self {
+        let view = cls.view();
+        let mut below = vec![0u32; TF_BINS + 1];
+        for (b, s) in view.rgba.iter().enumerate() {
+            below[b + 1] = below[b] + u32::from(s[3] != 0.0);
+        }
+        OpaqueBins { view, below }
+    }
+
+    /// Whether a trilinear value interpolated from corners within `[lo, hi]` can have
+    /// nonzero opacity: some bin of the widened range is opaque.
+    #[inline(always)]
+    pub(crate) fn any(&self, lo: f32, hi: f32) -> bool {
+        // The classifier's bin of `v` (`ClassifierView::sample`), monotone in `v`; not
+        // clamp, as there: `max` maps NaN to bin 0.
+        #[allow(clippy::manual_clamp)]
+        let bin = |v: f32| {
+            let b = ((v - self.view.lo) * self.view.scale).max(0.0).min(BIN_MAX);
+            // SAFETY: `b` is in [0, BIN_MAX] (NaN became 0), so it converts exactly; the
+            // checked conversion kept the loop from vectorising.
+            unsafe { b.to_int_unchecked::<u32>() as usize }
+        };
+        // The rounding of the trilinear lerps stays within a few ulps of the largest
+        // corner; widen by more than that.
+        let m = lo.abs().max(hi.abs()) * (8.0 * f32::EPSILON) + f32::MIN_POSITIVE;
+        self.below[bin(hi + m) + 1] > self.below[bin(lo - m)]
+    }
+}
+
 /// Which cells can hold a sample of nonzero opacity under one classification, and how far
 /// each cell is from one of the other kind: rebuilt from [`CellRanges`] whenever the
 /// weights (or the step) change.
@@ -210,31 +248,14 @@ impl Occupancy {
     /// range falls on has nonzero opacity.
     #[must_use]
     pub fn new(ranges: &CellRanges, cls: &Classifier) -> Self {
-        let view = cls.view();
-        // Bins of nonzero opacity below each bin.
-        let mut below = vec![0u32; TF_BINS + 1];
-        for (b, s) in view.rgba.iter().enumerate() {
-            below[b + 1] = below[b] + u32::from(s[3] != 0.0);
-        }
-        // The classifier's bin of `v` (`ClassifierView::sample`), monotone in `v`; not
-        // clamp, as there: `max` maps NaN to bin 0.
-        #[allow(clippy::manual_clamp)]
-        let bin = |v: f32| {
-            let b = ((v - view.lo) * view.scale).max(0.0).min(BIN_MAX);
-            // SAFETY: `b` is in [0, BIN_MAX] (NaN became 0), so it converts exactly; the
-            // checked conversion kept the loop from vectorising.
-            unsafe { b.to_int_unchecked::<u32>() as usize }
-        };
+        let opaque = OpaqueBins::new(cls);
         let mut cell = vec![false; ranges.range.len()];
         // In runs of plain loops: one iterator step per cell took 1.6 times as long.
         cell.par_chunks_mut(1 << 14)
             .zip(ranges.range.par_chunks(1 << 14))
             .for_each(|(out, range)| {
                 for (o, &[lo, hi]) in out.iter_mut().zip(range) {
-                    // The rounding of the trilinear lerps stays within a few ulps of the
-                    // largest corner; widen by more than that.
-                    let m = lo.abs().max(hi.abs()) * (8.0 * f32::EPSILON) + f32::MIN_POSITIVE;
-                    *o = below[bin(hi + m) + 1] > below[bin(lo - m)];
+                    *o = opaque.any(lo, hi);
                 }
             });
         let cells = ranges.cells;

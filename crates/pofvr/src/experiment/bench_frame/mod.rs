@@ -13,7 +13,7 @@ use serde::Serialize;
 use crate::render::{Camera, Image, Projection};
 use crate::{Engine, Frame, FrameRequest, Scene};
 
-pub use min_samples::minimum_samples;
+pub use min_samples::{minimum_samples, SampleBounds};
 pub use vtk_peer::{PeerVolume, VtkFrame, VtkPeer};
 
 use super::{ExperimentError, Progress};
@@ -78,6 +78,9 @@ pub struct EngineFrame {
     pub samples_per_ray: f64,
     /// `samples_per_ray` over the minimum.
     pub samples_over_minimum: f64,
+    /// `samples_per_ray` over the floor of an exact empty-space skip
+    /// ([`FrameCase::cell_floor_samples_per_ray`]).
+    pub samples_over_cell_floor: f64,
     /// Largest per-channel difference from the first engine's image.
     pub max_abs_diff_vs_whole: f32,
     /// VTK's frame time over this engine's, when VTK was measured: the median over rounds
@@ -128,8 +131,11 @@ pub struct FrameCase {
     pub shade: bool,
     /// Rays that meet the volume.
     pub rays: u64,
-    /// The fewest samples per ray ([`minimum_samples`]).
+    /// The fewest samples per ray: those of nonzero alpha ([`minimum_samples`]).
     pub min_samples_per_ray: f64,
+    /// The fewest samples per ray an engine that skips only what it knows to be empty can
+    /// take: those whose trilinear cell can hold opacity ([`SampleBounds::cell_floor`]).
+    pub cell_floor_samples_per_ray: f64,
     /// Each engine's frame.
     pub engines: Vec<EngineFrame>,
     /// VTK's frame.
@@ -182,8 +188,10 @@ pub fn bench_frame(
         for &[az, el] in &bench.views {
             let (w, h) = bench.size;
             let cam = Camera::orbit(scene.volume(), az, el, w, h, Projection::Orthographic);
-            let (rays, min_samples) = minimum_samples(scene, weights, &cam);
-            let min_per_ray = min_samples as f64 / rays.max(1) as f64;
+            let bounds = minimum_samples(scene, weights, &cam);
+            let rays = bounds.rays;
+            let min_per_ray = bounds.visible as f64 / rays.max(1) as f64;
+            let floor_per_ray = bounds.cell_floor as f64 / rays.max(1) as f64;
             for shade in [false, true] {
                 let req = FrameRequest::new(&cam).shade(shade);
                 // Per engine, the median of each round.
@@ -243,6 +251,7 @@ pub fn bench_frame(
                         samples: f.stats.samples,
                         samples_per_ray: per_ray,
                         samples_over_minimum: per_ray / min_per_ray,
+                        samples_over_cell_floor: per_ray / floor_per_ray,
                         max_abs_diff_vs_whole: diff,
                         samples_per_s_per_core: f.stats.samples as f64
                             / (median_ms * 1e-3)
@@ -258,6 +267,7 @@ pub fn bench_frame(
                     shade,
                     rays,
                     min_samples_per_ray: min_per_ray,
+                    cell_floor_samples_per_ray: floor_per_ray,
                     engines,
                     vtk,
                 });
