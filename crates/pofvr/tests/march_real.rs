@@ -54,3 +54,29 @@ fn march_equals_the_reference_on_every_real_volume() {
         }
     }
 }
+
+#[test]
+#[ignore = "needs ../shared/data (real volumes)"]
+fn the_floor_of_exact_skipping_lies_between_the_visible_samples_and_the_march_engines() {
+    use pofvr::experiment::bench_frame::minimum_samples;
+    let data = common::shared_data();
+    for (vol, tf) in common::CATALOGUE {
+        let volume = Volume::open(&data.join(vol), None).unwrap();
+        let family = TransferFunction::from_file(&common::family_file(tf)).unwrap();
+        let scene = Scene::builder(volume, family).build().unwrap();
+        for (az, el) in [(30.0, 20.0), (0.0, 90.0)] {
+            let cam = Camera::orbit(scene.volume(), az, el, 96, 96, Projection::Orthographic);
+            let b = minimum_samples(&scene, scene.default_weights(), &cam);
+            let req = FrameRequest::new(&cam).engine(Engine::March);
+            let march = scene.render(&req).unwrap();
+            // Real boundaries put samples of zero alpha into cells that can hold opacity,
+            // and 4³ cells hold more of them than single trilinear cells do.
+            assert!(
+                b.visible < b.cell_floor && b.cell_floor < march.stats.samples,
+                "{vol} view {az},{el}: {b:?}, march {}",
+                march.stats.samples
+            );
+            assert_eq!(b.rays, march.stats.rays, "{vol} view {az},{el}");
+        }
+    }
+}
