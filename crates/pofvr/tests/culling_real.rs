@@ -9,8 +9,7 @@ use pofvr::cull::range_bound::RangeBound;
 use pofvr::cull::{CoreLevels, CullMode, OpacityBound};
 use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
 use pofvr::pof::{PofSettings, PofTable};
-use pofvr::render::{Camera, Image, Projection, RenderSettings, TransferFunction};
-use pofvr::volume::Volume;
+use pofvr::render::{Camera, Image, Projection, RenderSettings};
 
 /// The threshold rule, asserted.
 pub fn assert_conservative(reference: &Image, culled: &Image, threshold: f32, what: &str) {
@@ -26,10 +25,7 @@ fn pixels_breaking_the_rule(reference: &Image, culled: &Image, threshold: f32) -
 #[test]
 #[ignore = "needs ../shared/data (real volumes)"]
 fn culling_is_conservative_on_every_real_volume() {
-    let data = common::shared_data();
-    for (vol, tf) in common::CATALOGUE {
-        let volume = Volume::open(&data.join(vol), None).unwrap();
-        let tf = TransferFunction::from_file(&common::family_file(tf)).unwrap();
+    for (vol, _, volume, tf) in common::open_catalogue() {
         let mut job = RenderJob::new(volume, tf, 16, RenderSettings::default()).unwrap();
         for weights in [[1.0, 1.0], [2.5, 0.5]] {
             job.tf.set_weights(weights.to_vec()).unwrap();
@@ -79,10 +75,7 @@ fn culling_is_conservative_on_every_real_volume() {
 #[test]
 #[ignore = "needs ../shared/data (real volumes)"]
 fn pof_culling_is_conservative_on_every_real_volume() {
-    let data = common::shared_data();
-    for (vol, tf) in common::CATALOGUE {
-        let volume = Volume::open(&data.join(vol), None).unwrap();
-        let tf = TransferFunction::from_file(&common::family_file(tf)).unwrap();
+    for (vol, _, volume, tf) in common::open_catalogue() {
         let mut job = RenderJob::new(volume, tf, 16, RenderSettings::default()).unwrap();
         let big = job.grid.len() > 2000;
         let settings = PofSettings {

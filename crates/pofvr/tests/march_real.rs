@@ -4,16 +4,13 @@
 
 mod common;
 
-use pofvr::render::{Camera, Projection, TransferFunction};
-use pofvr::{Engine, FrameRequest, Scene, Volume};
+use pofvr::render::{Camera, Projection};
+use pofvr::{Engine, FrameRequest, Scene};
 
 #[test]
 #[ignore = "needs ../shared/data (real volumes)"]
 fn march_equals_the_reference_on_every_real_volume() {
-    let data = common::shared_data();
-    for (vol, tf) in common::CATALOGUE {
-        let volume = Volume::open(&data.join(vol), None).unwrap();
-        let family = TransferFunction::from_file(&common::family_file(tf)).unwrap();
+    for (vol, tf, volume, family) in common::open_catalogue() {
         let bases = family.bases.len();
         let scene = Scene::builder(volume, family).build().unwrap();
         // The family's own weights, and the first basis alone (more of the volume empty).
@@ -59,10 +56,7 @@ fn march_equals_the_reference_on_every_real_volume() {
 #[ignore = "needs ../shared/data (real volumes)"]
 fn the_floor_of_exact_skipping_lies_between_the_visible_samples_and_the_march_engines() {
     use pofvr::experiment::bench_frame::minimum_samples;
-    let data = common::shared_data();
-    for (vol, tf) in common::CATALOGUE {
-        let volume = Volume::open(&data.join(vol), None).unwrap();
-        let family = TransferFunction::from_file(&common::family_file(tf)).unwrap();
+    for (vol, _, volume, family) in common::open_catalogue() {
         let scene = Scene::builder(volume, family).build().unwrap();
         for (az, el) in [(30.0, 20.0), (0.0, 90.0)] {
             let cam = Camera::orbit(scene.volume(), az, el, 96, 96, Projection::Orthographic);

@@ -8,8 +8,7 @@ mod common;
 use pofvr::check::check_threshold_rule;
 use pofvr::cull::CullMode;
 use pofvr::frame::{render_frame, FrameOptions, RenderJob};
-use pofvr::render::{Camera, Image, Projection, RayCaster, RenderSettings, TransferFunction};
-use pofvr::volume::Volume;
+use pofvr::render::{Camera, Image, Projection, RayCaster, RenderSettings};
 
 fn bits(i: &Image) -> Vec<u32> {
     i.pixels().iter().flatten().map(|v| v.to_bits()).collect()
@@ -18,10 +17,7 @@ fn bits(i: &Image) -> Vec<u32> {
 #[test]
 #[ignore = "needs ../shared/data (real volumes)"]
 fn shaded_frames_equal_the_scalar_reference_on_every_real_volume() {
-    let data = common::shared_data();
-    for (vol, tf) in common::CATALOGUE {
-        let volume = Volume::open(&data.join(vol), None).unwrap();
-        let tf = TransferFunction::from_file(&common::family_file(tf)).unwrap();
+    for (vol, _, volume, tf) in common::open_catalogue() {
         let settings = RenderSettings {
             shade: true,
             ..RenderSettings::default()

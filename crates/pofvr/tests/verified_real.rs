@@ -7,16 +7,12 @@ mod common;
 use pofvr::cull::range_bound::RangeBound;
 use pofvr::cull::{CullMode, OpacityBound, Predictor};
 use pofvr::frame::{render_frame, render_reference, FrameOptions, RenderJob};
-use pofvr::render::{Camera, Projection, RenderSettings, TransferFunction};
-use pofvr::volume::Volume;
+use pofvr::render::{Camera, Projection, RenderSettings};
 
 #[test]
 #[ignore = "needs ../shared/data (real volumes)"]
 fn every_predictor_obeys_the_threshold_rule_on_every_real_volume() {
-    let data = common::shared_data();
-    for (vol, tf) in common::CATALOGUE {
-        let volume = Volume::open(&data.join(vol), None).unwrap();
-        let tf = TransferFunction::from_file(&common::family_file(tf)).unwrap();
+    for (vol, _, volume, tf) in common::open_catalogue() {
         let job = RenderJob::new(volume, tf, 16, RenderSettings::default()).unwrap();
         let bound = RangeBound::new(
             &job.grid,

@@ -43,6 +43,24 @@ pub(crate) const CATALOGUE: [(&str, &str); 7] = [
     ("ch2better_mri/ch2better_mri.nhdr", "mri-brain-opaque.json"),
 ];
 
+/// Every catalogued volume, opened from [`shared_data`] one at a time, with its path, its
+/// family's file name and the family.
+pub(crate) fn open_catalogue() -> impl Iterator<
+    Item = (
+        &'static str,
+        &'static str,
+        pofvr::Volume,
+        pofvr::render::TransferFunction,
+    ),
+> {
+    let data = shared_data();
+    CATALOGUE.into_iter().map(move |(vol, tf)| {
+        let volume = pofvr::Volume::open(&data.join(vol), None).unwrap();
+        let family = pofvr::render::TransferFunction::from_file(&family_file(tf)).unwrap();
+        (vol, tf, volume, family)
+    })
+}
+
 /// A family file of the repository's `tfs/`.
 pub(crate) fn family_file(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
