@@ -738,6 +738,36 @@ fn the_engine_is_march_by_default_for_one_process_and_equals_whole() {
     assert!(w["march_simd"].is_null(), "{w}");
     assert_eq!(march, whole, "the march image is the --whole image");
     assert!(s["samples_per_ray"].as_f64() < w["samples_per_ray"].as_f64());
+    // Prefetching: off by itself for 64 KB of voxels, and no other engine's; forced on, the
+    // packet loops run it and the image stays the same.
+    assert_eq!(w["march_prefetch"], false, "{w}");
+    if std::env::var_os("POFVR_PREFETCH").is_none() {
+        assert_eq!(s["march_prefetch"], false, "{s}");
+    }
+    let mut args = common.to_vec();
+    args.extend_from_slice(&[
+        "--out",
+        "o.png",
+        "--out-raw",
+        "pf.raw",
+        "--stats",
+        "pf.json",
+    ]);
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pofvr"))
+        .args(&args)
+        .current_dir(d)
+        .env("POFVR_PREFETCH", "on")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let p: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("pf.json")).unwrap()).unwrap();
+    assert_eq!(p["march_prefetch"], steps > 0, "{p}");
+    assert_eq!(
+        std::fs::read(d.join("pf.raw")).unwrap(),
+        march,
+        "prefetching changes no pixel"
+    );
     let (_, b) = run(&["--engine", "bricks"], "bricks");
     assert_eq!(b["engine"], "bricks", "{b}");
     let (_, c) = run(&["--cull", "exact"], "culled");

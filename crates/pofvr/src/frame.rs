@@ -453,6 +453,10 @@ pub struct FrameStats {
     /// The loop the march engine ran ([`crate::render::MarchStats::simd`]: "avx512",
     /// "avx2", "walk-avx2", "sse2" or "scalar"); `None` for the other engines.
     pub march_simd: Option<&'static str>,
+    /// Whether the march engine's packet loops prefetched the voxels ahead of their rays
+    /// (by default where the voxels exceed the last-level cache; `POFVR_PREFETCH=on|off`
+    /// overrides it); false for the other engines. The image is the same either way.
+    pub march_prefetch: bool,
     /// Whether the culling was verified (and repaired) while compositing.
     pub verified: bool,
     /// The predictor of a verified frame (`None` otherwise).
@@ -737,13 +741,15 @@ pub(crate) fn march_with(
         ..job.settings
     };
     let t = Instant::now();
-    let (image, st) = RayCaster::new(&job.volume, &cls, settings).render_march(camera, &occ);
+    let caster = RayCaster::new(&job.volume, &cls, settings);
+    let (image, st) = caster.render_march(camera, &occ);
     let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut stats = FrameStats::from_rays(st.rays, start.elapsed().as_secs_f64(), "march");
     stats.skipped_samples = st.skipped_samples;
     stats.march_steps = st.packet_steps;
     stats.occupancy_ms = occupancy_ms;
     stats.march_simd = Some(st.simd);
+    stats.march_prefetch = caster.prefetch() && st.packet_steps > 0;
     // No brick is culled, and none is projected: every non-empty one counts as visible.
     let empty = job
         .grid

@@ -125,6 +125,9 @@ impl<'a> RayCaster<'a> {
                 avx2: arch::avx2_available(),
                 avx512: arch::avx512_available(),
                 scalar: false,
+                prefetch: arch::prefetch_pays(
+                    volume.data().len() * volume.data().data_type().size(),
+                ),
             },
             rays: OnceLock::new(),
         }
@@ -147,6 +150,22 @@ impl<'a> RayCaster<'a> {
     pub fn with_avx512(mut self, on: bool) -> Self {
         self.params.avx512 = on && self.params.avx2 && arch::avx512_available();
         self
+    }
+
+    /// The same caster with the march engine's packet loops prefetching the voxels ahead
+    /// of their rays (`on`) or not: the same image, bit for bit. By default they do where
+    /// the voxels exceed the last-level cache (or as `POFVR_PREFETCH=on|off` says); this is
+    /// for comparing the two.
+    #[must_use]
+    pub fn with_prefetch(mut self, on: bool) -> Self {
+        self.params.prefetch = on;
+        self
+    }
+
+    /// Whether the march engine's packet loops prefetch (see [`RayCaster::with_prefetch`]).
+    #[must_use]
+    pub fn prefetch(&self) -> bool {
+        self.params.prefetch
     }
 
     /// The loop the march engine's packets take: "avx512" (sixteen rays), "avx2" (eight)

@@ -25,11 +25,19 @@ fn compare(
     let occ = Occupancy::new(&CellRanges::new(vol), &cls);
     let mut first = None;
     // The packets of sixteen on AVX-512 and of eight on AVX2 (where the CPU has them),
-    // and the walk around the one-sample loop.
-    for (avx2, avx512) in [(true, true), (true, false), (false, false)] {
+    // and the walk around the one-sample loop; the packets with and without prefetching
+    // (these volumes are far below the size that turns it on by itself).
+    for (avx2, avx512, prefetch) in [
+        (true, true, false),
+        (true, true, true),
+        (true, false, false),
+        (true, false, true),
+        (false, false, false),
+    ] {
         let caster = RayCaster::new(vol, &cls, settings)
             .with_avx2(avx2)
-            .with_avx512(avx512);
+            .with_avx512(avx512)
+            .with_prefetch(prefetch);
         let want_packets = match (avx2, avx512) {
             (true, true) if arch::avx512_available() => "avx512",
             (true, _) if arch::avx2_available() => "avx2",
@@ -46,7 +54,7 @@ fn compare(
             assert_eq!(
                 g.map(f32::to_bits),
                 w.map(f32::to_bits),
-                "pixel {i} ({}, {}): march ({}, packets {}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
+                "pixel {i} ({}, {}): march ({}, packets {}, prefetch {prefetch}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
                 i as u32 % cam.width,
                 i as u32 / cam.width,
                 caster.simd(),
@@ -615,4 +623,23 @@ fn march_stats_name_the_packet_loop_that_ran() {
         "scalar"
     };
     assert_eq!(st.simd, want);
+}
+
+#[test]
+fn prefetching_is_on_only_for_volumes_larger_than_the_cache() {
+    let vol = Phantom::SheppLogan.generate(48);
+    let tf = families::for_phantom(Phantom::SheppLogan);
+    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
+    let cls = SampledTf::new(&tf, grid.value_range()).classify(&tf.weights, 1.0);
+    if std::env::var_os("POFVR_PREFETCH").is_some() {
+        println!("skipped: POFVR_PREFETCH is set, and decides instead of the volume's size");
+        return;
+    }
+    // 110 KB of voxels: below any last-level cache.
+    assert!(!RayCaster::new(&vol, &cls, RenderSettings::default()).prefetch());
+    assert!(!arch::prefetch_pays(64 << 10));
+    let on = cfg!(target_arch = "x86_64");
+    assert_eq!(arch::prefetch_pays(usize::MAX), on);
+    let c = RayCaster::new(&vol, &cls, RenderSettings::default()).with_prefetch(true);
+    assert!(c.prefetch());
 }

@@ -33,6 +33,10 @@ pub(crate) struct MarchParams<'c> {
     pub(crate) avx512: bool,
     /// Whether to run the scalar reference loop whatever the CPU has (for comparisons).
     pub(crate) scalar: bool,
+    /// Whether the march engine's packet loops prefetch the voxels ahead of their rays
+    /// (`x86_64::prefetch`: by default, where the voxels exceed the last-level cache).
+    /// Prefetches change no result.
+    pub(crate) prefetch: bool,
 }
 
 /// Voxel types every loop can sample.
@@ -60,6 +64,18 @@ pub(crate) fn avx512_available() -> bool {
     return x86_64::packet16::available();
     #[cfg(not(target_arch = "x86_64"))]
     false
+}
+
+/// Whether the march engine's packet loops should prefetch for a volume of
+/// `voxel_bytes` (`x86_64::prefetch::pays`; never where there is no such loop).
+pub(crate) fn prefetch_pays(voxel_bytes: usize) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return x86_64::prefetch::pays(voxel_bytes);
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = voxel_bytes;
+        false
+    }
 }
 
 /// Composites samples `range` of `ray` behind `acc`; returns the samples taken. Every

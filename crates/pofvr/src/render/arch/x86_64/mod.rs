@@ -4,6 +4,7 @@
 pub(crate) mod avx2;
 pub(crate) mod packet;
 pub(crate) mod packet16;
+pub(crate) mod prefetch;
 pub(crate) mod ranges;
 pub(crate) mod sse2;
 

@@ -36,6 +36,7 @@ use std::arch::x86_64::{
 
 use super::super::MarchParams;
 use super::avx2::{lambert8, Gather8};
+use super::prefetch;
 use crate::render::lattice::IndexRay;
 use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
 use crate::render::sampler::TrilinearSampler;
@@ -164,6 +165,15 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
     // The largest base whose reads stay inside the data; -1 when none does.
     let limit = (v.len() as i64 - 1 - (sx + sy + sz + T::OVERREAD) as i64).max(-1) as i32;
     let limit = _mm256_set1_epi32(limit);
+    // Where the voxels exceed the cache: each lane's element offset to the corner
+    // `AHEAD_VOXELS` on, and the second line of a cell across the ray (`prefetch`).
+    let ahead = p.prefetch.then(|| {
+        let off: [i32; LANES] = std::array::from_fn(|j| prefetch::ahead(pk.rays[j].d, tri.step));
+        // SAFETY: `off` holds eight i32.
+        let off = unsafe { _mm256_loadu_si256(off.as_ptr().cast()) };
+        let d = pk.rays[bits(has).trailing_zeros() as usize].d;
+        (off, prefetch::across(d, sy, sz))
+    });
     let cls = p.cls;
     let rgba = cls.rgba.as_ptr().cast::<f32>();
     let (lo, scale, bin_max) = (
@@ -280,6 +290,15 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
         );
         let src = _mm256_set1_epi32(need_bits.trailing_zeros() as i32);
         let base = blend_i(_mm256_permutevar8x32_epi32(base, src), base, need);
+        // The lines these lanes will read `AHEAD_VOXELS` on.
+        if let Some((off, across)) = ahead {
+            let b = _mm256_add_epi32(base, off);
+            let b = _mm256_min_epi32(_mm256_max_epi32(b, _mm256_setzero_si256()), limit);
+            let mut at = [0i32; LANES];
+            // SAFETY: `at` holds eight i32.
+            unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), b) };
+            prefetch::lines(v, &at, across);
+        }
         // SAFETY: every lane's position is clamped into the data, so its cell's corners
         // are inside `v`; past `limit` the gather of a wider word would read past the end.
         let c = unsafe {

@@ -34,6 +34,7 @@ use super::super::generic::{AMBIENT, DIFFUSE};
 use super::super::MarchParams;
 use super::avx2::Gather8;
 use super::packet::{corners_exact, rgba8, Packet, PacketStats, PacketTables};
+use super::prefetch;
 use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
 use crate::render::sampler::TrilinearSampler;
 use crate::render::skip::LEAP_MIN;
@@ -176,6 +177,15 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
     // The largest base whose reads stay inside the data; -1 when none does.
     let limit = (v.len() as i64 - 1 - (sx + sy + sz + T::OVERREAD) as i64).max(-1) as i32;
     let limit = _mm512_set1_epi32(limit);
+    // Where the voxels exceed the cache: each lane's element offset to the corner
+    // `AHEAD_VOXELS` on, and the second line of a cell across the ray (`prefetch`).
+    let ahead = p.prefetch.then(|| {
+        let off: [i32; LANES] = std::array::from_fn(|j| prefetch::ahead(pk.rays[j].d, tri.step));
+        // SAFETY: `off` holds sixteen i32.
+        let off = unsafe { _mm512_loadu_epi32(off.as_ptr()) };
+        let d = pk.rays[has.trailing_zeros() as usize].d;
+        (off, prefetch::across(d, sy, sz))
+    });
     let cls = p.cls;
     let rgba = cls.rgba.as_ptr().cast::<f32>();
     let (lo, scale, bin_max) = (
@@ -321,6 +331,23 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
             }
         }};
     }
+    // The lines the lanes in `need` will read `AHEAD_VOXELS` on (lanes outside `need`
+    // ask for a lane's in it, as in `sample!`).
+    macro_rules! prefetch {
+        ($base:expr, $need:expr) => {{
+            if let Some((off, across)) = ahead {
+                let (base, need): (__m512i, __mmask16) = ($base, $need);
+                let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
+                let b = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
+                let b = _mm512_add_epi32(b, off);
+                let b = _mm512_min_epi32(_mm512_max_epi32(b, _mm512_setzero_si512()), limit);
+                let mut at = [0i32; LANES];
+                // SAFETY: `at` holds sixteen i32.
+                unsafe { _mm512_storeu_epi32(at.as_mut_ptr(), b) };
+                prefetch::lines(v, &at, across);
+            }
+        }};
+    }
     if oblique(&pk.rays[has.trailing_zeros() as usize].d) {
         // Oblique rays: each lane at its own sample index. A lane in an empty cell leaps on
         // its own (by the rule of `leap_end`, lane-wise), a lane in an occupied one samples,
@@ -353,6 +380,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 next = _mm512_mask_blend_epi32(empty, next, kb);
             }
             if need != 0 {
+                prefetch!(base, need);
                 sample!(base, f, need, &mut acc);
                 st.samples += u64::from(need.count_ones());
             }
@@ -396,6 +424,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 continue;
             }
             let need = occ_bits & live;
+            prefetch!(base, need);
             sample!(base, f, need, &mut acc);
             st.samples += u64::from(need.count_ones());
             st.skipped += u64::from((live & !occ_bits).count_ones());
