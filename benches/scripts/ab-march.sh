@@ -4,7 +4,8 @@
 # of the frames after the first; prints the median over rounds per binary and the ratio
 # to the first binary.
 #   benches/scripts/ab-march.sh ROUNDS BINARY_A BINARY_B...
-# Environment: DATA (default ../shared/data), BIG (default /work/big/chest1728).
+# Environment: DATA (default ../shared/data), BIG (default /work/big/chest1728), VIEWS
+# (default "30,20 0,90"), VOLS (instead of the volumes below: "VOLUME TF;VOLUME TF;...").
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 rounds=$1
@@ -17,18 +18,20 @@ vols=("$big/chest1728.nhdr tfs/ct-chest-skin-bone.json"
   "$D/lidc2_ct_chest/lidc2_ct_chest.nhdr tfs/ct-chest-skin-bone.json"
   "$D/headsq_quarter/headsq_quarter.nhdr tfs/ct-head-skin-bone.json"
   "$D/ch2better_mri/ch2better_mri.nhdr tfs/mri-brain.json")
+[ -n "${VOLS:-}" ] && IFS=';' read -ra vols <<<"$VOLS"
+read -ra views <<<"${VIEWS:-30,20 0,90}"
 png=$(mktemp --suffix=.png)
 for _ in $(seq "$rounds"); do
   for bin in "${bins[@]}"; do
     for v in "${vols[@]}"; do
       read -r vol tf <<<"$v"
-      for view in 30,20 0,90; do
+      for view in "${views[@]}"; do
         for shade in off on; do
           flag=(); [ "$shade" = on ] && flag=(--shade)
           ms=$("$bin" --threads 2 --quiet render "$vol" --tf "$tf" --view "$view" "${flag[@]}" \
             --size 512x512 --frames 10 --orbit 0 -o "$png" 2>&1 |
             grep -o "median of the rest [0-9.]*" | awk '{print $5}')
-          echo "$bin $(basename "$vol" .nhdr) $view $shade $ms" >>"$log"
+          echo "$bin $(basename "$vol" .nhdr)$(basename "$tf" .json | sed 's/^/:/') $view $shade $ms" >>"$log"
         done
       done
     done
