@@ -590,12 +590,19 @@ fn frame_rays_equal_the_casters_pixel_rays_bit_for_bit() {
     }
 }
 
-#[test]
-fn march_stats_name_the_packet_loop_that_ran() {
+/// The 48³ Shepp–Logan phantom (110 KB of u8 voxels) and its family's classification at
+/// step 1.
+fn classified_head() -> (Volume, Classifier) {
     let vol = Phantom::SheppLogan.generate(48);
     let tf = families::for_phantom(Phantom::SheppLogan);
     let grid = BrickGrid::from_volume(&vol, 16).unwrap();
     let cls = SampledTf::new(&tf, grid.value_range()).classify(&tf.weights, 1.0);
+    (vol, cls)
+}
+
+#[test]
+fn march_stats_name_the_packet_loop_that_ran() {
+    let (vol, cls) = classified_head();
     let occ = Occupancy::new(&CellRanges::new(&vol), &cls);
     let cam = Camera::orbit(&vol, 30.0, 20.0, 32, 32, Projection::Orthographic);
     let caster = |avx2: bool, avx512: bool| {
@@ -627,10 +634,7 @@ fn march_stats_name_the_packet_loop_that_ran() {
 
 #[test]
 fn prefetching_is_on_only_for_volumes_larger_than_the_cache() {
-    let vol = Phantom::SheppLogan.generate(48);
-    let tf = families::for_phantom(Phantom::SheppLogan);
-    let grid = BrickGrid::from_volume(&vol, 16).unwrap();
-    let cls = SampledTf::new(&tf, grid.value_range()).classify(&tf.weights, 1.0);
+    let (vol, cls) = classified_head();
     if std::env::var_os("POFVR_PREFETCH").is_some() {
         println!("skipped: POFVR_PREFETCH is set, and decides instead of the volume's size");
         return;

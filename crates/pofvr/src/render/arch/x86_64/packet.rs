@@ -168,11 +168,10 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
     // Where the voxels exceed the cache: each lane's element offset to the corner
     // `AHEAD_VOXELS` on, and the second line of a cell across the ray (`prefetch`).
     let ahead = p.prefetch.then(|| {
-        let off: [i32; LANES] = std::array::from_fn(|j| prefetch::ahead(pk.rays[j].d, tri.step));
+        let (off, across) =
+            prefetch::offsets(&pk.rays, bits(has).trailing_zeros() as usize, tri.step);
         // SAFETY: `off` holds eight i32.
-        let off = unsafe { _mm256_loadu_si256(off.as_ptr().cast()) };
-        let d = pk.rays[bits(has).trailing_zeros() as usize].d;
-        (off, prefetch::across(d, sy, sz))
+        (unsafe { _mm256_loadu_si256(off.as_ptr().cast()) }, across)
     });
     let cls = p.cls;
     let rgba = cls.rgba.as_ptr().cast::<f32>();

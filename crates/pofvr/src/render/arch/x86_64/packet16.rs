@@ -180,11 +180,9 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
     // Where the voxels exceed the cache: each lane's element offset to the corner
     // `AHEAD_VOXELS` on, and the second line of a cell across the ray (`prefetch`).
     let ahead = p.prefetch.then(|| {
-        let off: [i32; LANES] = std::array::from_fn(|j| prefetch::ahead(pk.rays[j].d, tri.step));
+        let (off, across) = prefetch::offsets(&pk.rays, has.trailing_zeros() as usize, tri.step);
         // SAFETY: `off` holds sixteen i32.
-        let off = unsafe { _mm512_loadu_epi32(off.as_ptr()) };
-        let d = pk.rays[has.trailing_zeros() as usize].d;
-        (off, prefetch::across(d, sy, sz))
+        (unsafe { _mm512_loadu_epi32(off.as_ptr()) }, across)
     });
     let cls = p.cls;
     let rgba = cls.rgba.as_ptr().cast::<f32>();
@@ -259,11 +257,16 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 }
             }
         };
-    // One sample of the lanes in `need` (those in occupied cells), composited into `acc`
-    // as the reference does: the same in lockstep and lane by lane. Lanes outside `need`
-    // read the corners of a lane in it instead of their own: their samples classify to
-    // zero opacity whatever they read (the rule the leaps rest on), and the loads then hit
-    // lines already on their way in. They count as skipped, not as samples taken.
+    // Lanes outside `need` (those in occupied cells) take the corners' base of a lane in
+    // it instead of their own: their samples classify to zero opacity whatever they read
+    // (the rule the leaps rest on), and the loads (and prefetches) then hit lines already
+    // on their way in. They count as skipped, not as samples taken.
+    let redirect = |base: __m512i, need: __mmask16| {
+        let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
+        _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base)
+    };
+    // One sample of the lanes in `need`, from bases `redirect` gave, composited into `acc`
+    // as the reference does: the same in lockstep and lane by lane.
     // A macro rather than a closure, so that both loops get it inline: as a closure it
     // was one call with the accumulators through memory per sample step, not inlined
     // at two call sites (frames up to 10 % slower, `docs/results.md`).
@@ -271,8 +274,6 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
         ($base:expr, $f:expr, $need:expr, $acc:expr) => {{
             let (base, f, need, acc): (__m512i, [__m512; 3], __mmask16, &mut [__m512; 4]) =
                 ($base, $f, $need, $acc);
-            let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
-            let base = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
             let [b0, b1] = halves(base);
             // SAFETY: every lane's position is clamped into the data, so its cell's corners
             // are inside `v`; past `limit` the gather of a wider word would read past the end.
@@ -331,15 +332,11 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
             }
         }};
     }
-    // The lines the lanes in `need` will read `AHEAD_VOXELS` on (lanes outside `need`
-    // ask for a lane's in it, as in `sample!`).
+    // The lines the lanes will read `AHEAD_VOXELS` on, from bases `redirect` gave.
     macro_rules! prefetch {
-        ($base:expr, $need:expr) => {{
+        ($base:expr) => {{
             if let Some((off, across)) = ahead {
-                let (base, need): (__m512i, __mmask16) = ($base, $need);
-                let src = _mm512_set1_epi32(need.trailing_zeros() as i32);
-                let b = _mm512_mask_blend_epi32(need, _mm512_permutexvar_epi32(src, base), base);
-                let b = _mm512_add_epi32(b, off);
+                let b = _mm512_add_epi32($base, off);
                 let b = _mm512_min_epi32(_mm512_max_epi32(b, _mm512_setzero_si512()), limit);
                 let mut at = [0i32; LANES];
                 // SAFETY: `at` holds sixteen i32.
@@ -380,7 +377,8 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 next = _mm512_mask_blend_epi32(empty, next, kb);
             }
             if need != 0 {
-                prefetch!(base, need);
+                let base = redirect(base, need);
+                prefetch!(base);
                 sample!(base, f, need, &mut acc);
                 st.samples += u64::from(need.count_ones());
             }
@@ -424,7 +422,8 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 continue;
             }
             let need = occ_bits & live;
-            prefetch!(base, need);
+            let base = redirect(base, need);
+            prefetch!(base);
             sample!(base, f, need, &mut acc);
             st.samples += u64::from(need.count_ones());
             st.skipped += u64::from((live & !occ_bits).count_ones());

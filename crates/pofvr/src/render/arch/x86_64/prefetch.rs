@@ -15,6 +15,8 @@
 
 use std::sync::OnceLock;
 
+use crate::render::lattice::IndexRay;
+
 /// How far ahead of a lane's sample, in voxels along the ray's main axis, its lines are
 /// asked for. One voxel is too close on oblique views (the lines arrive after the
 /// sample), four too far (they are gone again from L1 or never used).
@@ -84,10 +86,22 @@ fn parse_size(s: &str) -> Option<usize> {
     num.parse::<usize>().ok()?.checked_mul(unit)
 }
 
+/// For a packet's `rays` through voxels of element strides `step`: each lane's [`ahead`]
+/// offset, and the packet's [`across`] offset, from the direction of its ray `lead` (a
+/// lane with a ray; a packet's rays are nearly parallel).
+pub(crate) fn offsets<const N: usize>(
+    rays: &[IndexRay; N],
+    lead: usize,
+    step: [usize; 3],
+) -> ([i32; N], usize) {
+    let off = std::array::from_fn(|j| ahead(rays[j].d, step));
+    (off, across(rays[lead].d, step[1], step[2]))
+}
+
 /// The element offset, for a ray of index-space direction `d` through voxels of element
 /// strides `strides`, from a sample's corner to the corner [`AHEAD_VOXELS`] along the ray's
 /// main axis (each axis rounded to whole voxels); 0 for a ray with no direction.
-pub(crate) fn ahead(d: [f32; 3], strides: [usize; 3]) -> i32 {
+fn ahead(d: [f32; 3], strides: [usize; 3]) -> i32 {
     let m = d.iter().fold(0f32, |m, x| m.max(x.abs()));
     // `f32::max` drops NaN, so `m` is at least 0.
     if m == 0.0 || !m.is_finite() {
@@ -102,7 +116,7 @@ pub(crate) fn ahead(d: [f32; 3], strides: [usize; 3]) -> i32 {
 /// The second line a cell's corners lie on, as an element offset from the first, for
 /// a ray of direction `d`: the cell's next row (`sy`) unless the ray moves mostly along y,
 /// whose rows it walks anyway, then its next slice (`sz`).
-pub(crate) fn across(d: [f32; 3], sy: usize, sz: usize) -> usize {
+fn across(d: [f32; 3], sy: usize, sz: usize) -> usize {
     let [x, y, z] = d.map(f32::abs);
     if y > x && y > z {
         sz
