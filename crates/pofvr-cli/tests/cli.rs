@@ -744,30 +744,37 @@ fn the_engine_is_march_by_default_for_one_process_and_equals_whole() {
     if std::env::var_os("POFVR_PREFETCH").is_none() {
         assert_eq!(s["march_prefetch"], false, "{s}");
     }
-    let mut args = common.to_vec();
-    args.extend_from_slice(&[
-        "--out",
-        "o.png",
-        "--out-raw",
-        "pf.raw",
-        "--stats",
-        "pf.json",
-    ]);
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pofvr"))
-        .args(&args)
-        .current_dir(d)
-        .env("POFVR_PREFETCH", "on")
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
-    let p: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("pf.json")).unwrap()).unwrap();
+    // The default march frame with one switch set in the environment.
+    let run_env = |key: &str, value: &str| {
+        let (raw, stats) = (format!("{key}-{value}.raw"), format!("{key}-{value}.json"));
+        let mut args = common.to_vec();
+        args.extend_from_slice(&["--out", "o.png", "--out-raw", &raw, "--stats", &stats]);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pofvr"))
+            .args(&args)
+            .current_dir(d)
+            .env(key, value)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{key}={value}: {}", stderr(&o));
+        let s: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+        (std::fs::read(d.join(&raw)).unwrap(), s)
+    };
+    let (pf, p) = run_env("POFVR_PREFETCH", "on");
     assert_eq!(p["march_prefetch"], steps > 0, "{p}");
-    assert_eq!(
-        std::fs::read(d.join("pf.raw")).unwrap(),
-        march,
-        "prefetching changes no pixel"
+    assert_eq!(pf, march, "prefetching changes no pixel");
+    // Gathers: on or off as asked, where the sixteen-lane loop runs, and never another
+    // engine's; the image is the same either way.
+    assert_eq!(w["march_gather"], false, "{w}");
+    assert!(
+        !s["march_gather"].as_bool().unwrap() || simd == "avx512",
+        "{s}"
     );
+    for on in ["on", "off"] {
+        let (g, gs) = run_env("POFVR_GATHER", on);
+        assert_eq!(gs["march_gather"], on == "on" && simd == "avx512", "{gs}");
+        assert_eq!(g, march, "POFVR_GATHER={on} changes no pixel");
+    }
     let (_, b) = run(&["--engine", "bricks"], "bricks");
     assert_eq!(b["engine"], "bricks", "{b}");
     let (_, c) = run(&["--cull", "exact"], "culled");

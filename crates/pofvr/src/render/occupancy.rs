@@ -29,6 +29,9 @@ pub(crate) const CELL_SHIFT: u32 = 2;
 /// The largest chessboard distance kept for an empty cell: a leap crosses at most
 /// `2·EMPTY_CAP − 1` cells along an axis. Each unit costs one pass of the rebuild.
 const EMPTY_CAP: u8 = 8;
+/// Zero bytes after the last of [`Occupancy::leaps`]' entries: a 32-bit gather at any
+/// cell's entry (the sixteen-lane loop's, `arch::x86_64::gather16`) stays inside it.
+pub(crate) const LEAP_PAD: usize = 3;
 /// The bit of an [`Occupancy::leaps`] entry that marks an occupied cell.
 pub(crate) const OCCUPIED: u8 = 0x80;
 
@@ -239,7 +242,7 @@ pub struct Occupancy {
     /// at least 1, capped) to the nearest cell of the other kind; an empty cell's distance
     /// to the nearest occupied one is capped at [`EMPTY_CAP`], an occupied cell's to the
     /// nearest empty one at [`OCCUPIED_CAP`]. Every cell within `distance − 1` of a cell
-    /// (on every axis) is of its kind.
+    /// (on every axis) is of its kind. Followed by [`LEAP_PAD`] zero bytes.
     leap: Vec<u8>,
 }
 
@@ -260,11 +263,12 @@ impl Occupancy {
             });
         let cells = ranges.cells;
         let to_occupied = chessboard(&cell, true, cells, EMPTY_CAP);
-        let leap: Vec<u8> = cell
+        let mut leap: Vec<u8> = cell
             .par_iter()
             .zip(&to_occupied)
             .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
             .collect();
+        leap.resize(leap.len() + LEAP_PAD, 0);
         Occupancy { cells, cell, leap }
     }
 
@@ -282,7 +286,8 @@ impl Occupancy {
         self.cell[(c[2] as usize * cy + c[1] as usize) * cx + c[0] as usize]
     }
 
-    /// Every cell's leap entry (see the field), x fastest.
+    /// Every cell's leap entry (see the field), x fastest, and [`LEAP_PAD`] bytes after
+    /// the last.
     #[must_use]
     pub(crate) fn leaps(&self) -> &[u8] {
         &self.leap

@@ -128,6 +128,7 @@ impl<'a> RayCaster<'a> {
                 prefetch: arch::prefetch_pays(
                     volume.data().len() * volume.data().data_type().size(),
                 ),
+                gather: arch::gather_pays(),
             },
             rays: OnceLock::new(),
         }
@@ -160,6 +161,23 @@ impl<'a> RayCaster<'a> {
     pub fn with_prefetch(mut self, on: bool) -> Self {
         self.params.prefetch = on;
         self
+    }
+
+    /// The same caster with the march engine's sixteen-lane packet loop loading its
+    /// corners and table entries by gathers (`on`, where the CPU runs that loop) or lane
+    /// by lane: the same image, bit for bit. By default it gathers where gathers measured
+    /// faster on this CPU (or as `POFVR_GATHER=on|off` says); this is for comparing the two.
+    #[must_use]
+    pub fn with_gather(mut self, on: bool) -> Self {
+        self.params.gather = on && arch::avx512_available();
+        self
+    }
+
+    /// Whether the sixteen-lane packet loop loads by gathers (see
+    /// [`RayCaster::with_gather`]).
+    #[must_use]
+    pub fn gather(&self) -> bool {
+        self.params.gather
     }
 
     /// Whether the march engine's packet loops prefetch (see [`RayCaster::with_prefetch`]).

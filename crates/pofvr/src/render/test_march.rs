@@ -26,18 +26,22 @@ fn compare(
     let mut first = None;
     // The packets of sixteen on AVX-512 and of eight on AVX2 (where the CPU has them),
     // and the walk around the one-sample loop; the packets with and without prefetching
-    // (these volumes are far below the size that turns it on by itself).
-    for (avx2, avx512, prefetch) in [
-        (true, true, false),
-        (true, true, true),
-        (true, false, false),
-        (true, false, true),
-        (false, false, false),
+    // (these volumes are far below the size that turns it on by itself), the sixteen
+    // with loads lane by lane and by gathers.
+    for (avx2, avx512, prefetch, gather) in [
+        (true, true, false, false),
+        (true, true, false, true),
+        (true, true, true, false),
+        (true, true, true, true),
+        (true, false, false, false),
+        (true, false, true, false),
+        (false, false, false, false),
     ] {
         let caster = RayCaster::new(vol, &cls, settings)
             .with_avx2(avx2)
             .with_avx512(avx512)
-            .with_prefetch(prefetch);
+            .with_prefetch(prefetch)
+            .with_gather(gather);
         let want_packets = match (avx2, avx512) {
             (true, true) if arch::avx512_available() => "avx512",
             (true, _) if arch::avx2_available() => "avx2",
@@ -54,7 +58,7 @@ fn compare(
             assert_eq!(
                 g.map(f32::to_bits),
                 w.map(f32::to_bits),
-                "pixel {i} ({}, {}): march ({}, packets {}, prefetch {prefetch}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
+                "pixel {i} ({}, {}): march ({}, packets {}, prefetch {prefetch}, gather {gather}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
                 i as u32 % cam.width,
                 i as u32 / cam.width,
                 caster.simd(),
@@ -646,4 +650,21 @@ fn prefetching_is_on_only_for_volumes_larger_than_the_cache() {
     assert_eq!(arch::prefetch_pays(usize::MAX), on);
     let c = RayCaster::new(&vol, &cls, RenderSettings::default()).with_prefetch(true);
     assert!(c.prefetch());
+}
+
+#[test]
+fn gathers_are_taken_only_where_the_sixteen_lane_loop_runs() {
+    let (vol, cls) = classified_head();
+    let caster = || RayCaster::new(&vol, &cls, RenderSettings::default());
+    // Asked for, they are on exactly where the loop can run; off, off everywhere.
+    assert_eq!(
+        caster().with_gather(true).gather(),
+        arch::avx512_available()
+    );
+    assert!(!caster().with_gather(false).gather());
+    // By default, as measured (or as POFVR_GATHER says), and never without the loop.
+    assert_eq!(caster().gather(), arch::gather_pays());
+    if !arch::avx512_available() {
+        assert!(!caster().gather());
+    }
 }

@@ -37,13 +37,20 @@ pub(crate) struct MarchParams<'c> {
     /// (`x86_64::prefetch`: by default, where the voxels exceed the last-level cache).
     /// Prefetches change no result.
     pub(crate) prefetch: bool,
+    /// Whether the sixteen-lane packet loop loads its corners and table entries by
+    /// gathers (`x86_64::gather16`: by default, where they measured faster than loads
+    /// lane by lane). Either form reads the same words.
+    pub(crate) gather: bool,
 }
 
 /// Voxel types every loop can sample.
 #[cfg(target_arch = "x86_64")]
-pub(crate) trait Gather: x86_64::avx2::Gather8 + x86_64::sse2::GatherOne {}
+pub(crate) trait Gather:
+    x86_64::avx2::Gather8 + x86_64::sse2::GatherOne + x86_64::gather16::Gather16
+{
+}
 #[cfg(target_arch = "x86_64")]
-impl<T: x86_64::avx2::Gather8 + x86_64::sse2::GatherOne> Gather for T {}
+impl<T: x86_64::avx2::Gather8 + x86_64::sse2::GatherOne + x86_64::gather16::Gather16> Gather for T {}
 /// Voxel types every loop can sample.
 #[cfg(not(target_arch = "x86_64"))]
 pub(crate) trait Gather: Voxel {}
@@ -76,6 +83,15 @@ pub(crate) fn prefetch_pays(voxel_bytes: usize) -> bool {
         let _ = voxel_bytes;
         false
     }
+}
+
+/// Whether the sixteen-lane packet loop should load by gathers on this CPU
+/// (`x86_64::gather16::pays`; never where there is no such loop).
+pub(crate) fn gather_pays() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return x86_64::gather16::pays();
+    #[cfg(not(target_arch = "x86_64"))]
+    false
 }
 
 /// Composites samples `range` of `ray` behind `acc`; returns the samples taken. Every

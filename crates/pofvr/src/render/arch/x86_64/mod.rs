@@ -2,6 +2,7 @@
 //! for the last cells of the data, where the eight-lane gather would read past the end.
 
 pub(crate) mod avx2;
+pub(crate) mod gather16;
 pub(crate) mod packet;
 pub(crate) mod packet16;
 pub(crate) mod prefetch;

@@ -48,6 +48,7 @@ pub(crate) const LANES: usize = 8;
 /// One packet: `N` rays (eight here, sixteen for [`super::packet16`]; a lane whose range
 /// is empty takes no part), the lattice indices `k0..k1` each claims, and their
 /// premultiplied RGBA so far.
+#[derive(Clone)]
 pub(crate) struct Packet<const N: usize = LANES> {
     pub(crate) rays: [IndexRay; N],
     pub(crate) k0: [i32; N],

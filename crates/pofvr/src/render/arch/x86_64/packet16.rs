@@ -32,7 +32,7 @@ use std::arch::x86_64::{
 
 use super::super::generic::{AMBIENT, DIFFUSE};
 use super::super::MarchParams;
-use super::avx2::Gather8;
+use super::gather16::{self, Gather16};
 use super::packet::{corners_exact, rgba8, Packet, PacketStats, PacketTables};
 use super::prefetch;
 use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
@@ -65,14 +65,14 @@ fn vec16(v: [f32; LANES]) -> __m512 {
 /// The two eight-lane halves of `v`.
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn halves(v: __m512i) -> [__m256i; 2] {
+pub(super) fn halves(v: __m512i) -> [__m256i; 2] {
     [_mm512_castsi512_si256(v), _mm512_extracti64x4_epi64::<1>(v)]
 }
 
 /// Two eight-lane halves as one vector.
 #[target_feature(enable = "avx512f,avx512dq")]
 #[inline]
-fn join(lo: __m256, hi: __m256) -> __m512 {
+pub(super) fn join(lo: __m256, hi: __m256) -> __m512 {
     _mm512_insertf32x8::<1>(_mm512_castps256_ps512(lo), hi)
 }
 
@@ -118,7 +118,7 @@ fn lambert16(g: [__m512; 3], spacing: [__m512; 3], dir: [__m512; 3]) -> __m512 {
 /// AVX-512 F/BW/DQ/VL and AVX2 are available and [`super::avx2::fits`] holds; `tab` was
 /// built for this volume and classification, with the padding it documents.
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
-pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
+pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
     tab: &PacketTables<'_>,
@@ -184,6 +184,7 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
         // SAFETY: `off` holds sixteen i32.
         (unsafe { _mm512_loadu_epi32(off.as_ptr()) }, across)
     });
+    let gather = p.gather;
     let cls = p.cls;
     let rgba = cls.rgba.as_ptr().cast::<f32>();
     let (lo, scale, bin_max) = (
@@ -245,6 +246,17 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
         |idx: __m512i, last_idx: &mut __m512i, lv: &mut [i32; LANES], occ_bits: &mut __mmask16| {
             if _mm512_cmpeq_epi32_mask(idx, *last_idx) != 0xFFFF {
                 *last_idx = idx;
+                if gather {
+                    // SAFETY: every lane's cell is inside the grid (positions are clamped),
+                    // and the table is padded for a word at its last entry; `lv` holds
+                    // sixteen i32.
+                    unsafe {
+                        let (e, occ) = gather16::leaps16(tab.leap, idx, OCCUPIED);
+                        _mm512_storeu_epi32(lv.as_mut_ptr(), e);
+                        *occ_bits = occ;
+                    }
+                    return;
+                }
                 let mut ci = [0u32; LANES];
                 // SAFETY: `ci` holds sixteen u32.
                 unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
@@ -274,19 +286,24 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
         ($base:expr, $f:expr, $need:expr, $acc:expr) => {{
             let (base, f, need, acc): (__m512i, [__m512; 3], __mmask16, &mut [__m512; 4]) =
                 ($base, $f, $need, $acc);
-            let [b0, b1] = halves(base);
             // SAFETY: every lane's position is clamped into the data, so its cell's corners
             // are inside `v`; past `limit` the gather of a wider word would read past the end.
             let c: [__m512; 8] = unsafe {
-                let (h0, h1) = if _mm512_cmpgt_epi32_mask(base, limit) == 0 {
-                    (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
+                let inside = _mm512_cmpgt_epi32_mask(base, limit) == 0;
+                if inside && gather {
+                    T::corners16(v, base, tri.step)
                 } else {
-                    (
-                        corners_exact(v, b0, tri.step),
-                        corners_exact(v, b1, tri.step),
-                    )
-                };
-                std::array::from_fn(|i| join(h0[i], h1[i]))
+                    let [b0, b1] = halves(base);
+                    let (h0, h1) = if inside {
+                        (T::corners8(v, b0, tri.step), T::corners8(v, b1, tri.step))
+                    } else {
+                        (
+                            corners_exact(v, b0, tri.step),
+                            corners_exact(v, b1, tri.step),
+                        )
+                    };
+                    std::array::from_fn(|i| join(h0[i], h1[i]))
+                }
             };
             let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
             let lerp = |a: __m512, b: __m512, w: __m512| {
@@ -304,10 +321,17 @@ pub(crate) unsafe fn march16<T: Gather8, const SHADE: bool>(
                 _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(value, lo), scale), zero),
                 bin_max,
             );
-            let [bl, bh] = halves(_mm512_cvttps_epi32(x));
+            let bin = _mm512_cvttps_epi32(x);
             // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
-            let (q0, q1) = unsafe { (rgba8(rgba, bl), rgba8(rgba, bh)) };
-            let [r, g, b, alpha] = std::array::from_fn(|i| join(q0[i], q1[i]));
+            let [r, g, b, alpha]: [__m512; 4] = unsafe {
+                if gather {
+                    gather16::rgba16(rgba, bin)
+                } else {
+                    let [bl, bh] = halves(bin);
+                    let (q0, q1) = (rgba8(rgba, bl), rgba8(rgba, bh));
+                    std::array::from_fn(|i| join(q0[i], q1[i]))
+                }
+            };
             let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
             if opaque != 0 {
                 let mut s = [r, g, b];

@@ -1,0 +1,400 @@
+//! The sixteen-lane loop's loads by `vpgatherdd`: a cell's corners, the classification's
+//! entries and the occupancy's, one gather instruction per word for all sixteen lanes,
+//! where the other form ([`super::avx2`]'s `words`, `rgba8`, a scalar lookup loop) loads
+//! each lane's word on its own and inserts it into a vector.
+//!
+//! Which form is faster depends on the core. On the Intel development VM (AVX-512, no
+//! gather microcode mitigation) a sixteen-lane gather costs a fraction of sixteen loads
+//! and inserts, and the frames of every catalogued volume took 10–25 % less
+//! (`docs/results.md`, "Stop 38"); eight-lane gathers in the AVX2 loops gained nothing
+//! there, and on cores whose gathers are microcoded or mitigated (older Intel, AMD
+//! before Zen 5) they are known to lose. So the choice is measured once per process
+//! ([`pays`]): both forms fetch the corners of the same random cells of a synthetic
+//! volume, and the gathers are taken only where they are clearly faster.
+//! `POFVR_GATHER=on|off` overrides the measurement. Both forms read the same words, so
+//! the image is the same either way.
+
+use std::arch::x86_64::{
+    __m512, __m512i, __mmask16, _mm512_add_epi32, _mm512_and_si512, _mm512_cvtepi32_ps,
+    _mm512_i32gather_epi32, _mm512_i32gather_ps, _mm512_set1_epi32, _mm512_slli_epi32,
+    _mm512_srai_epi32, _mm512_srli_epi32, _mm512_test_epi32_mask,
+};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use super::super::MarchParams;
+use super::avx2::Gather8;
+use super::packet::{Packet, PacketTables};
+use super::packet16::{march16, LANES};
+use crate::render::lattice::IndexRay;
+use crate::render::occupancy::{CELL, LEAP_PAD, OCCUPIED};
+use crate::render::sampler::TrilinearSampler;
+use crate::render::transfer_function::{ClassifierView, BIN_MAX, TF_BINS};
+
+/// Voxel types whose cell corners the sixteen-lane loop can gather.
+pub(crate) trait Gather16: Gather8 {
+    /// [`Gather8::corners8`] on sixteen lanes, by 512-bit gathers of the same words.
+    ///
+    /// # Safety
+    /// AVX-512 F is available; as [`Gather8::corners8`], for every lane.
+    unsafe fn corners16(v: &[Self], base: __m512i, step: [usize; 3]) -> [__m512; 8];
+}
+
+/// The four 32-bit words at elements `base`, `base + sy`, `base + sz`, `base + sy + sz` of
+/// `v`, whose elements are `S` bytes wide, lane by lane (as `avx2`'s `words`).
+///
+/// # Safety
+/// AVX-512 F is available; every word lies inside `v`'s allocation.
+#[inline(always)]
+unsafe fn words16<T, const S: i32>(v: &[T], base: __m512i, sy: usize, sz: usize) -> [__m512i; 4] {
+    let p = v.as_ptr().cast::<i32>();
+    // SAFETY: the words are inside `v` (caller); offsets are below 2^31 (`avx2::fits`).
+    let at = |off: usize| unsafe {
+        _mm512_i32gather_epi32::<S>(_mm512_add_epi32(base, _mm512_set1_epi32(off as i32)), p)
+    };
+    [at(0), at(sy), at(sz), at(sy + sz)]
+}
+
+/// The corners from the four words of [`words16`]: `lo` and `hi` take a word's corner and
+/// its x neighbour.
+#[inline(always)]
+fn pairs16(
+    [w00, w10, w01, w11]: [__m512i; 4],
+    lo: impl Fn(__m512i) -> __m512,
+    hi: impl Fn(__m512i) -> __m512,
+) -> [__m512; 8] {
+    [
+        lo(w00),
+        hi(w00),
+        lo(w10),
+        hi(w10),
+        lo(w01),
+        hi(w01),
+        lo(w11),
+        hi(w11),
+    ]
+}
+
+impl Gather16 for u8 {
+    #[inline(always)]
+    unsafe fn corners16(v: &[u8], base: __m512i, [_, sy, sz]: [usize; 3]) -> [__m512; 8] {
+        // SAFETY: each word starts at a corner and ends OVERREAD bytes past its x
+        // neighbour; AVX-512 F (caller).
+        unsafe {
+            let w = words16::<u8, 1>(v, base, sy, sz);
+            let m = _mm512_set1_epi32(0xFF);
+            let lo = |w| _mm512_cvtepi32_ps(_mm512_and_si512(w, m));
+            let hi = |w| _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32::<8>(w), m));
+            pairs16(w, lo, hi)
+        }
+    }
+}
+
+impl Gather16 for u16 {
+    #[inline(always)]
+    unsafe fn corners16(v: &[u16], base: __m512i, [_, sy, sz]: [usize; 3]) -> [__m512; 8] {
+        // SAFETY: each word is a corner and its x neighbour; AVX-512 F (caller).
+        unsafe {
+            let w = words16::<u16, 2>(v, base, sy, sz);
+            let m = _mm512_set1_epi32(0xFFFF);
+            let lo = |w| _mm512_cvtepi32_ps(_mm512_and_si512(w, m));
+            let hi = |w| _mm512_cvtepi32_ps(_mm512_srli_epi32::<16>(w));
+            pairs16(w, lo, hi)
+        }
+    }
+}
+
+impl Gather16 for i16 {
+    #[inline(always)]
+    unsafe fn corners16(v: &[i16], base: __m512i, [_, sy, sz]: [usize; 3]) -> [__m512; 8] {
+        // SAFETY: each word is a corner and its x neighbour; AVX-512 F (caller).
+        unsafe {
+            let w = words16::<i16, 2>(v, base, sy, sz);
+            // Arithmetic shifts sign-extend each half.
+            let lo = |w| _mm512_cvtepi32_ps(_mm512_srai_epi32::<16>(_mm512_slli_epi32::<16>(w)));
+            let hi = |w| _mm512_cvtepi32_ps(_mm512_srai_epi32::<16>(w));
+            pairs16(w, lo, hi)
+        }
+    }
+}
+
+impl Gather16 for f32 {
+    #[inline(always)]
+    unsafe fn corners16(v: &[f32], base: __m512i, [sx, sy, sz]: [usize; 3]) -> [__m512; 8] {
+        let p = v.as_ptr();
+        // SAFETY: every offset is a corner of the cell; AVX-512 F (caller).
+        let at = |off: usize| unsafe {
+            _mm512_i32gather_ps::<4>(_mm512_add_epi32(base, _mm512_set1_epi32(off as i32)), p)
+        };
+        [
+            at(0),
+            at(sx),
+            at(sy),
+            at(sy + sx),
+            at(sz),
+            at(sz + sx),
+            at(sz + sy),
+            at(sz + sy + sx),
+        ]
+    }
+}
+
+/// The classification's entries (four floats each: r, g, b, alpha) at `bin`, channel by
+/// channel, as `packet`'s `rgba8` gives them for each half.
+///
+/// # Safety
+/// AVX-512 F is available; `rgba` holds an entry for every lane's bin.
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub(crate) unsafe fn rgba16(rgba: *const f32, bin: __m512i) -> [__m512; 4] {
+    let at = _mm512_slli_epi32::<2>(bin);
+    // SAFETY: channel `c` of entry `b` is float `4b + c` of the table (caller).
+    std::array::from_fn(|c| unsafe { _mm512_i32gather_ps::<4>(at, rgba.add(c)) })
+}
+
+/// The occupancy entries of cells `idx`, and which of them have `occupied` set, as bits.
+///
+/// # Safety
+/// AVX-512 F is available; `leap` holds every lane's cell and the three bytes after it
+/// (`Occupancy::leaps`' padding).
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub(crate) unsafe fn leaps16(leap: &[u8], idx: __m512i, occupied: u8) -> (__m512i, __mmask16) {
+    // SAFETY: each 32-bit word starts at a lane's entry and stays inside `leap` (caller).
+    let w = unsafe { _mm512_i32gather_epi32::<1>(idx, leap.as_ptr().cast()) };
+    let e = _mm512_and_si512(w, _mm512_set1_epi32(0xFF));
+    (
+        e,
+        _mm512_test_epi32_mask(e, _mm512_set1_epi32(i32::from(occupied))),
+    )
+}
+
+/// Whether the sixteen-lane loop loads by gathers: as `POFVR_GATHER` says (`on`, `off`),
+/// else as measured once per process ([`measure`]). False where the loop cannot run.
+pub(crate) fn pays() -> bool {
+    static PAYS: OnceLock<bool> = OnceLock::new();
+    *PAYS.get_or_init(|| match std::env::var("POFVR_GATHER").as_deref() {
+        Ok(s) if s.eq_ignore_ascii_case("on") => super::packet16::available(),
+        Ok(s) if s.eq_ignore_ascii_case("off") => false,
+        _ => {
+            super::packet16::available() && {
+                let (lanes, gathers) = measure();
+                gathers.as_secs_f64() < GATHER_MARGIN * lanes.as_secs_f64()
+            }
+        }
+    })
+}
+
+/// How much faster than the per-lane loads the gathers must be to be taken: a choice
+/// that wins by less is within what this measurement can tell on a busy machine.
+const GATHER_MARGIN: f64 = 0.9;
+
+/// Voxels per axis of the synthetic volume [`measure`] marches (256 KiB of i16: in L2,
+/// as most of a frame's loads are, so that what is timed is the loop, not the memory).
+const MEASURE_N: usize = 64;
+/// Packets per timing, samples per ray, and timings per form.
+const MEASURE_PACKETS: usize = 32;
+const MEASURE_SAMPLES: i32 = 48;
+const MEASURE_ROUNDS: usize = 7;
+
+/// The least time, over [`MEASURE_ROUNDS`] interleaved timings each, that the sixteen-lane
+/// loop takes to march the same packets of oblique rays through a synthetic volume, every
+/// cell occupied and no ray terminating, loading lane by lane and by gathers (a few
+/// milliseconds in all). Timing the loads alone would not do: they cost about the same on
+/// their own, and what the gathers save in the loop is the inserts and extracts that
+/// compete with its other shuffles. Only where the sixteen-lane loop runs.
+fn measure() -> (Duration, Duration) {
+    let n = MEASURE_N;
+    let v: Vec<i16> = (0..n * n * n)
+        .map(|i| ((i % n * 37 + i / n % n * 11 + i / (n * n) * 5) % 1024) as i16)
+        .collect();
+    let tri = TrilinearSampler::new(&v, [n; 3]);
+    let rgba = vec![[0.05, 0.04, 0.03, 0.05]; TF_BINS];
+    let cells = (n - 1).div_ceil(CELL) as i32;
+    let leap = vec![OCCUPIED; (cells * cells * cells) as usize + LEAP_PAD];
+    let tab = PacketTables {
+        leap: &leap,
+        cells: [cells; 3],
+    };
+    let params = |gather| MarchParams {
+        cls: ClassifierView {
+            lo: 0.0,
+            scale: BIN_MAX / 1024.0,
+            rgba: &rgba,
+        },
+        step: 1.0,
+        ert: 2.0,
+        shade: None,
+        avx2: true,
+        avx512: true,
+        scalar: false,
+        prefetch: false,
+        gather,
+    };
+    let len = (0.3f32 * 0.3 + 0.4 * 0.4 + 0.85 * 0.85).sqrt();
+    let d = [0.3 / len, 0.4 / len, 0.85 / len];
+    let packets: Vec<Packet<LANES>> = (0..MEASURE_PACKETS)
+        .map(|p| Packet {
+            rays: std::array::from_fn(|j| IndexRay {
+                o: [
+                    1.5 + (p % 8 * 4 + j % 4) as f32 * 0.9,
+                    1.5 + (p / 8 * 4 + j / 4) as f32 * 0.9,
+                    0.5,
+                ],
+                d,
+                dir: d,
+            }),
+            k0: [0; LANES],
+            k1: [MEASURE_SAMPLES; LANES],
+            acc: [[0.0; 4]; LANES],
+        })
+        .collect();
+    let mut best = [Duration::MAX; 2];
+    for _ in 0..MEASURE_ROUNDS {
+        for (g, b) in best.iter_mut().enumerate() {
+            let p = params(g == 1);
+            let mut pk = packets.clone();
+            let start = Instant::now();
+            for pk in &mut pk {
+                // SAFETY: the caller checked that the loop runs on this CPU; the table
+                // is this volume's (every cell occupied), padded; every ray's samples
+                // stay inside the volume.
+                std::hint::black_box(unsafe { march16::<i16, false>(&p, &tri, &tab, pk) });
+            }
+            *b = (*b).min(start.elapsed());
+            std::hint::black_box(&pk);
+        }
+    }
+    (best[0], best[1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::packet16::{halves, join};
+    use super::*;
+    use std::arch::x86_64::_mm512_loadu_epi32;
+
+    #[test]
+    fn gathers_read_the_words_the_per_lane_loads_read() {
+        if !super::super::packet16::available() {
+            println!("skipped: this CPU does not run the sixteen-lane loop");
+            return;
+        }
+        // Each type's corners of the same cells, both ways, bit for bit; bases up to the
+        // last one whose words stay inside the data.
+        fn check<T: Gather16>(v: &[T], step: [usize; 3]) {
+            let last = (v.len() - 1 - step[0] - step[1] - step[2] - T::OVERREAD) as i32;
+            let b: [i32; LANES] = std::array::from_fn(|j| last - (j as i32 * 37) % (last + 1));
+            // SAFETY: this CPU runs the loop; every base leaves its words inside `v`.
+            let (g, l) = unsafe { corners_both(v, &b, step) };
+            assert_eq!(g, l, "{}", std::any::type_name::<T>());
+        }
+        let n = 6 * 5 * 4;
+        let step = [1, 6, 30];
+        check::<u8>(
+            &(0..n).map(|i| (i * 7 % 256) as u8).collect::<Vec<_>>(),
+            step,
+        );
+        check::<u16>(&(0..n).map(|i| (i * 977) as u16).collect::<Vec<_>>(), step);
+        check::<i16>(
+            &(0..n)
+                .map(|i| (i * 977) as i16 - 20_000)
+                .collect::<Vec<_>>(),
+            step,
+        );
+        check::<f32>(&(0..n).map(|i| i as f32 * -0.37).collect::<Vec<_>>(), step);
+    }
+
+    /// The corners of the cells at `b` by [`Gather16::corners16`] and by
+    /// [`Gather8::corners8`] on each half, as bits.
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
+    unsafe fn corners_both<T: Gather16>(
+        v: &[T],
+        b: &[i32; LANES],
+        step: [usize; 3],
+    ) -> ([[u32; LANES]; 8], [[u32; LANES]; 8]) {
+        let bits = |c: [__m512; 8]| {
+            c.map(|c| {
+                let mut o = [0f32; LANES];
+                // SAFETY: `o` holds sixteen f32.
+                unsafe { std::arch::x86_64::_mm512_storeu_ps(o.as_mut_ptr(), c) };
+                o.map(f32::to_bits)
+            })
+        };
+        // SAFETY: caller.
+        unsafe {
+            let base = _mm512_loadu_epi32(b.as_ptr());
+            let [b0, b1] = halves(base);
+            let (h0, h1) = (T::corners8(v, b0, step), T::corners8(v, b1, step));
+            (
+                bits(T::corners16(v, base, step)),
+                bits(std::array::from_fn(|i| join(h0[i], h1[i]))),
+            )
+        }
+    }
+
+    #[test]
+    fn the_table_lookups_match_the_per_lane_ones() {
+        if !super::super::packet16::available() {
+            println!("skipped: this CPU does not run the sixteen-lane loop");
+            return;
+        }
+        let rgba: Vec<f32> = (0..64 * 4).map(|i| i as f32 * 0.5).collect();
+        let leap: Vec<u8> = (0..40u8)
+            .map(|i| if i % 3 == 0 { 0x80 | i } else { i })
+            .collect();
+        let bins: [i32; LANES] = std::array::from_fn(|j| (j as i32 * 13) % 64);
+        let cells: [i32; LANES] = std::array::from_fn(|j| 36 - j as i32 * 2);
+        // SAFETY: this CPU runs the loop; every bin is in the table, every cell's word
+        // is inside `leap`.
+        let (q, e, m) = unsafe { lookups(&rgba, &leap, &bins, &cells) };
+        for j in 0..LANES {
+            let b = bins[j] as usize;
+            assert_eq!(q.map(|c| c[j]), [0, 1, 2, 3].map(|c| rgba[4 * b + c]));
+            let want = leap[cells[j] as usize];
+            assert_eq!(e[j], i32::from(want));
+            assert_eq!(m >> j & 1 != 0, want & 0x80 != 0);
+        }
+    }
+
+    /// [`rgba16`] at `bins` and [`leaps16`] at `cells`, as arrays.
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
+    unsafe fn lookups(
+        rgba: &[f32],
+        leap: &[u8],
+        bins: &[i32; LANES],
+        cells: &[i32; LANES],
+    ) -> ([[f32; LANES]; 4], [i32; LANES], __mmask16) {
+        // SAFETY: caller.
+        unsafe {
+            let q = rgba16(rgba.as_ptr(), _mm512_loadu_epi32(bins.as_ptr()));
+            let (e, m) = leaps16(leap, _mm512_loadu_epi32(cells.as_ptr()), 0x80);
+            let mut eo = [0i32; LANES];
+            std::arch::x86_64::_mm512_storeu_epi32(eo.as_mut_ptr(), e);
+            let q = q.map(|c| {
+                let mut o = [0f32; LANES];
+                std::arch::x86_64::_mm512_storeu_ps(o.as_mut_ptr(), c);
+                o
+            });
+            (q, eo, m)
+        }
+    }
+
+    #[test]
+    fn the_measurement_times_both_forms() {
+        if !super::super::packet16::available() {
+            println!("skipped: this CPU does not run the sixteen-lane loop");
+            return;
+        }
+        let (lanes, gathers) = measure();
+        println!("lanes {lanes:?} gathers {gathers:?}");
+        assert!(
+            lanes > Duration::ZERO && lanes < Duration::from_secs(1),
+            "{lanes:?}"
+        );
+        assert!(
+            gathers > Duration::ZERO && gathers < Duration::from_secs(1),
+            "{gathers:?}"
+        );
+    }
+}
