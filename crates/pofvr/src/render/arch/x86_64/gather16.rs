@@ -139,17 +139,16 @@ impl Gather16 for f32 {
     }
 }
 
-/// The classification's entries (four floats each: r, g, b, alpha) at `bin`, channel by
-/// channel, as `packet`'s `rgba8` gives them for each half.
+/// Channel `c` (0–3: r, g, b, alpha) of the classification's entries (four floats each)
+/// at `bin`, as `packet`'s `rgba8` gives it for each half.
 ///
 /// # Safety
-/// AVX-512 F is available; `rgba` holds an entry for every lane's bin.
+/// AVX-512 F is available; `c < 4`; `rgba` holds an entry for every lane's bin.
 #[target_feature(enable = "avx512f")]
 #[inline]
-pub(crate) unsafe fn rgba16(rgba: *const f32, bin: __m512i) -> [__m512; 4] {
-    let at = _mm512_slli_epi32::<2>(bin);
+pub(crate) unsafe fn channel16(rgba: *const f32, bin: __m512i, c: usize) -> __m512 {
     // SAFETY: channel `c` of entry `b` is float `4b + c` of the table (caller).
-    std::array::from_fn(|c| unsafe { _mm512_i32gather_ps::<4>(at, rgba.add(c)) })
+    unsafe { _mm512_i32gather_ps::<4>(_mm512_slli_epi32::<2>(bin), rgba.add(c)) }
 }
 
 /// The occupancy entries of cells `idx`, and which of them have `occupied` set, as bits.
@@ -357,7 +356,7 @@ mod tests {
         }
     }
 
-    /// [`rgba16`] at `bins` and [`leaps16`] at `cells`, as arrays.
+    /// [`channel16`] at `bins` and [`leaps16`] at `cells`, as arrays.
     #[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
     unsafe fn lookups(
         rgba: &[f32],
@@ -367,7 +366,8 @@ mod tests {
     ) -> ([[f32; LANES]; 4], [i32; LANES], __mmask16) {
         // SAFETY: caller.
         unsafe {
-            let q = rgba16(rgba.as_ptr(), _mm512_loadu_epi32(bins.as_ptr()));
+            let bin = _mm512_loadu_epi32(bins.as_ptr());
+            let q: [__m512; 4] = std::array::from_fn(|c| channel16(rgba.as_ptr(), bin, c));
             let (e, m) = leaps16(leap, _mm512_loadu_epi32(cells.as_ptr()), 0x80);
             let mut eo = [0i32; LANES];
             std::arch::x86_64::_mm512_storeu_epi32(eo.as_mut_ptr(), e);

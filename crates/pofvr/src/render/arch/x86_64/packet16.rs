@@ -323,18 +323,25 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
             );
             let bin = _mm512_cvttps_epi32(x);
             // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
-            let [r, g, b, alpha]: [__m512; 4] = unsafe {
+            // Gathers fetch the opacity first, and the colour only for a step in which
+            // some lane's sample is not transparent (the loads lane by lane come as
+            // whole entries, all four channels at once).
+            let (alpha, rgb): (__m512, Option<[__m512; 3]>) = unsafe {
                 if gather {
-                    gather16::rgba16(rgba, bin)
+                    (gather16::channel16(rgba, bin, 3), None)
                 } else {
                     let [bl, bh] = halves(bin);
                     let (q0, q1) = (rgba8(rgba, bl), rgba8(rgba, bh));
-                    std::array::from_fn(|i| join(q0[i], q1[i]))
+                    let [r, g, b, a] = std::array::from_fn(|i| join(q0[i], q1[i]));
+                    (a, Some([r, g, b]))
                 }
             };
             let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
             if opaque != 0 {
-                let mut s = [r, g, b];
+                // SAFETY: as above.
+                let mut s = rgb.unwrap_or_else(|| unsafe {
+                    std::array::from_fn(|c| gather16::channel16(rgba, bin, c))
+                });
                 if SHADE {
                     // `Cell::gradient`, lane-wise.
                     let (d00, d10) = (_mm512_sub_ps(c100, c000), _mm512_sub_ps(c110, c010));
