@@ -382,18 +382,31 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
         // in the same iteration; each lane's samples are those of the lockstep loop below, in
         // the same order, so the pixels are the same.
         let mut kv = _mm512_mask_blend_epi32(has, k1v, k0v);
+        // The lanes open (not terminated) as of an earlier step: they choose the lanes
+        // that move, leap and load, while `open`, this step's, chooses those that
+        // composite and count. Were the loads chosen by `open`, each step's gathers would
+        // wait for the previous step's composite (opacity, compare, mask, redirect:
+        // a chain through the whole step); chosen a step late, they overlap it. A lane
+        // that terminated then moves and loads once more, for nothing: its samples do not
+        // composite, and its position stays clamped inside the volume. Opacity only
+        // grows, so `lag` holds every lane of `open`. (Frames 2–11 % faster,
+        // `docs/results.md`, stop 38.)
+        let mut lag: __mmask16 = 0xFFFF;
         loop {
             // As the reference's `acc[3] >= ert` stop, negated.
             let open = _mm512_cmp_ps_mask::<_CMP_NGE_UQ>(acc[3], ert);
-            let live = _mm512_cmpgt_epi32_mask(k1v, kv) & open & has;
+            // Lanes short of their last sample that were open a step ago.
+            let go = _mm512_cmpgt_epi32_mask(k1v, kv) & has & std::mem::replace(&mut lag, open);
+            let live = go & open;
             if live == 0 {
                 break;
             }
             let t = _mm512_mul_ps(_mm512_cvtepi32_ps(kv), stepv);
             let (base, f, cell, idx) = locate(t);
             lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
-            let empty = live & !occ_bits;
+            let empty = go & !occ_bits;
             let need = live & occ_bits;
+            let load = go & occ_bits;
             let mut next = _mm512_add_epi32(kv, one);
             st.steps += 1;
             if empty != 0 {
@@ -403,21 +416,24 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
                 let kb = _mm512_max_epi32(kb, next);
                 // Each lane leaps less than 2^24 samples (indices are exact in f32), so the
                 // sum over sixteen lanes fits an i32.
-                let gone = _mm512_mask_reduce_add_epi32(empty, _mm512_sub_epi32(kb, kv));
+                let gone = _mm512_mask_reduce_add_epi32(empty & live, _mm512_sub_epi32(kb, kv));
                 st.skipped += gone as u64;
                 next = _mm512_mask_blend_epi32(empty, next, kb);
             }
             if need != 0 {
-                let base = redirect(base, need);
+                let base = redirect(base, load);
                 prefetch!(base);
                 sample!(base, f, need, &mut acc);
                 st.samples += u64::from(need.count_ones());
             }
-            kv = _mm512_mask_blend_epi32(live, kv, next);
+            kv = _mm512_mask_blend_epi32(go, kv, next);
         }
     } else {
         // Rays along an axis: the packet in lockstep, at one sample index `k`.
         let mut k = hmin(has, k0v);
+        // As in the oblique loop: the lanes open as of an earlier sampling step, which
+        // choose the loads (a terminated lane loads its own corners once more).
+        let mut lag: __mmask16 = 0xFFFF;
         loop {
             let kv = _mm512_set1_epi32(k);
             // Lanes whose ray claims sample k and has not terminated.
@@ -453,7 +469,10 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
                 continue;
             }
             let need = occ_bits & live;
-            let base = redirect(base, need);
+            let base = redirect(
+                base,
+                occ_bits & started & before_end & std::mem::replace(&mut lag, open),
+            );
             prefetch!(base);
             sample!(base, f, need, &mut acc);
             st.samples += u64::from(need.count_ones());
