@@ -194,6 +194,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
     let mut last_idx = _mm256_set1_epi32(-1);
     let mut lv = [0i32; LANES];
     let mut occ_bits = 0u32;
+    // Every lane open as of an earlier sampling step (see `load_bits`).
+    let mut lag = 0xFFu32;
     loop {
         let kv = _mm256_set1_epi32(k);
         // Lanes whose ray claims sample k and has not terminated.
@@ -288,8 +290,18 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             _mm256_and_si256(_mm256_set1_epi32(need_bits as i32), lane_bit),
             lane_bit,
         );
-        let src = _mm256_set1_epi32(need_bits.trailing_zeros() as i32);
-        let base = blend_i(_mm256_permutevar8x32_epi32(base, src), base, need);
+        // The lanes that load their own corners: those open as of an earlier sampling
+        // step (`lag`, as in `packet16`: so that this step's loads need not wait for the
+        // previous step's composite; a terminated lane loads once more, for nothing).
+        let load_bits = occ_bits
+            & bits(_mm256_and_si256(started, before_end))
+            & std::mem::replace(&mut lag, bits(open));
+        let load = _mm256_cmpeq_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(load_bits as i32), lane_bit),
+            lane_bit,
+        );
+        let src = _mm256_set1_epi32(load_bits.trailing_zeros() as i32);
+        let base = blend_i(_mm256_permutevar8x32_epi32(base, src), base, load);
         // The lines these lanes will read `AHEAD_VOXELS` on.
         if let Some((off, across)) = ahead {
             let b = _mm256_add_epi32(base, off);
