@@ -308,7 +308,7 @@ impl Occupancy {
 /// indicator (0 or `cap`), then the same along y of that, then along z. Capped, the window
 /// is `|j| < cap`; each pass is `2·(cap − 1)` runs of byte minima and maxima over shifted
 /// rows or slices, which the compiler vectorises.
-pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
+pub(crate) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
     let [nx, ny, _] = dims;
     let slice = nx * ny;
     let mut d: Vec<u8> = kind

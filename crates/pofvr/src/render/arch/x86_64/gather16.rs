@@ -24,10 +24,10 @@ use std::time::{Duration, Instant};
 
 use super::super::MarchParams;
 use super::avx2::Gather8;
-use super::packet::{Packet, PacketTables};
+use super::packet::{Packet, PacketStats, PacketTables};
 use super::packet16::{march16, LANES};
 use crate::render::lattice::IndexRay;
-use crate::render::occupancy::{CELL, LEAP_PAD, OCCUPIED};
+use crate::render::occupancy::{chessboard, CELL, LEAP_PAD, OCCUPIED};
 use crate::render::sampler::TrilinearSampler;
 use crate::render::transfer_function::{ClassifierView, BIN_MAX, TF_BINS};
 
@@ -185,8 +185,9 @@ pub(crate) fn pays() -> bool {
 }
 
 /// How much faster than the per-lane loads the gathers must be to be taken: a choice
-/// that wins by less is within what this measurement can tell on a busy machine.
-const GATHER_MARGIN: f64 = 0.9;
+/// that wins by less is within what this measurement can tell on a busy machine (its
+/// timings spread by about 3 % from one process to the next).
+const GATHER_MARGIN: f64 = 0.95;
 
 /// Voxels per axis of the synthetic volume [`measure`] marches (256 KiB of i16: in L2,
 /// as most of a frame's loads are, so that what is timed is the loop, not the memory).
@@ -195,73 +196,136 @@ const MEASURE_N: usize = 64;
 const MEASURE_PACKETS: usize = 32;
 const MEASURE_SAMPLES: i32 = 48;
 const MEASURE_ROUNDS: usize = 7;
+/// The synthetic volume's values up to which the classification is opaque (bins below
+/// `TF_BINS / 2`, values 0–1023 over the table): about half of each ray.
+const OPAQUE_BELOW: i16 = 512;
+
+/// What [`measure`] marches: a synthetic volume and classification shaped like a frame's,
+/// in miniature. Values run in diagonal bands, so about half of each ray is opaque, and
+/// half of the cells are empty and leapt over; neighbouring rays see the same bands, so,
+/// as in frames, many steps find every lane's sample transparent and fetch no colour.
+/// (A first version, every cell occupied and every sample opaque, timed the gathers at
+/// 0.86–0.92 of the per-lane loads on a core where frames took 0.63–1.03: too close to
+/// the margin to decide the same way in every process, `docs/results.md`, stop 39.)
+struct Synthetic {
+    v: Vec<i16>,
+    rgba: Vec<[f32; 4]>,
+    leap: Vec<u8>,
+    packets: Vec<Packet<LANES>>,
+}
+
+impl Synthetic {
+    fn new() -> Self {
+        let n = MEASURE_N;
+        let v: Vec<i16> = (0..n * n * n)
+            .map(|i| ((i % n * 3 + i / n % n * 5 + i / (n * n) * 7) * 2 % 1024) as i16)
+            .collect();
+        // Values 0–1023 over the table: bins below the middle are opaque.
+        let rgba: Vec<[f32; 4]> = (0..TF_BINS)
+            .map(|b| {
+                if b < TF_BINS / 2 {
+                    [0.05, 0.04, 0.03, 0.05]
+                } else {
+                    [0.0; 4]
+                }
+            })
+            .collect();
+        let cells = (n - 1).div_ceil(CELL);
+        // A cell is occupied where some corner of its trilinear cells is opaque.
+        let occupied: Vec<bool> = (0..cells * cells * cells)
+            .map(|c| {
+                let at = [c % cells, c / cells % cells, c / (cells * cells)].map(|a| a * CELL);
+                let span = |a: usize| at[a]..=(at[a] + CELL).min(n - 1);
+                span(2).any(|z| {
+                    span(1).any(|y| span(0).any(|x| v[(z * n + y) * n + x] <= OPAQUE_BELOW))
+                })
+            })
+            .collect();
+        let mut leap: Vec<u8> = chessboard(&occupied, true, [cells; 3], 8)
+            .into_iter()
+            .zip(&occupied)
+            .map(|(e, &o)| if o { OCCUPIED } else { e })
+            .collect();
+        leap.resize(leap.len() + LEAP_PAD, 0);
+        let len = (0.3f32 * 0.3 + 0.4 * 0.4 + 0.85 * 0.85).sqrt();
+        let d = [0.3 / len, 0.4 / len, 0.85 / len];
+        let packets = (0..MEASURE_PACKETS)
+            .map(|p| Packet {
+                rays: std::array::from_fn(|j| IndexRay {
+                    o: [
+                        1.5 + (p % 8 * 4 + j % 4) as f32 * 0.9,
+                        1.5 + (p / 8 * 4 + j / 4) as f32 * 0.9,
+                        0.5,
+                    ],
+                    d,
+                    dir: d,
+                }),
+                k0: [0; LANES],
+                k1: [MEASURE_SAMPLES; LANES],
+                acc: [[0.0; 4]; LANES],
+            })
+            .collect();
+        Synthetic {
+            v,
+            rgba,
+            leap,
+            packets,
+        }
+    }
+
+    /// Marches every packet with gathers or without; the packets as they end, and the
+    /// stats summed.
+    fn march(&self, gather: bool) -> (Vec<Packet<LANES>>, PacketStats) {
+        let n = MEASURE_N;
+        let tri = TrilinearSampler::new(&self.v, [n; 3]);
+        let cells = (n - 1).div_ceil(CELL) as i32;
+        let tab = PacketTables {
+            leap: &self.leap,
+            cells: [cells; 3],
+        };
+        let p = MarchParams {
+            cls: ClassifierView {
+                lo: 0.0,
+                scale: BIN_MAX / 1024.0,
+                rgba: &self.rgba,
+            },
+            step: 1.0,
+            ert: 2.0,
+            shade: None,
+            avx2: true,
+            avx512: true,
+            scalar: false,
+            prefetch: false,
+            gather,
+        };
+        let mut pk = self.packets.clone();
+        let mut sum = PacketStats::default();
+        for pk in &mut pk {
+            // SAFETY: the callers checked that the loop runs on this CPU; the table is
+            // this volume's, padded; every ray's samples stay inside the volume.
+            let st = std::hint::black_box(unsafe { march16::<i16, false>(&p, &tri, &tab, pk) });
+            sum.samples += st.samples;
+            sum.skipped += st.skipped;
+            sum.steps += st.steps;
+        }
+        (pk, sum)
+    }
+}
 
 /// The least time, over [`MEASURE_ROUNDS`] interleaved timings each, that the sixteen-lane
-/// loop takes to march the same packets of oblique rays through a synthetic volume, every
-/// cell occupied and no ray terminating, loading lane by lane and by gathers (a few
-/// milliseconds in all). Timing the loads alone would not do: they cost about the same on
-/// their own, and what the gathers save in the loop is the inserts and extracts that
-/// compete with its other shuffles. Only where the sixteen-lane loop runs.
+/// loop takes to march the packets of [`Synthetic`] (oblique rays, none terminating),
+/// loading lane by lane and by gathers (a few milliseconds in all). Timing the loads alone
+/// would not do: they cost about the same on their own, and what the gathers save in the
+/// loop is the inserts and extracts that compete with its other shuffles, and the colour
+/// of steps whose samples are all transparent. Only where the sixteen-lane loop runs.
 fn measure() -> (Duration, Duration) {
-    let n = MEASURE_N;
-    let v: Vec<i16> = (0..n * n * n)
-        .map(|i| ((i % n * 37 + i / n % n * 11 + i / (n * n) * 5) % 1024) as i16)
-        .collect();
-    let tri = TrilinearSampler::new(&v, [n; 3]);
-    let rgba = vec![[0.05, 0.04, 0.03, 0.05]; TF_BINS];
-    let cells = (n - 1).div_ceil(CELL) as i32;
-    let leap = vec![OCCUPIED; (cells * cells * cells) as usize + LEAP_PAD];
-    let tab = PacketTables {
-        leap: &leap,
-        cells: [cells; 3],
-    };
-    let params = |gather| MarchParams {
-        cls: ClassifierView {
-            lo: 0.0,
-            scale: BIN_MAX / 1024.0,
-            rgba: &rgba,
-        },
-        step: 1.0,
-        ert: 2.0,
-        shade: None,
-        avx2: true,
-        avx512: true,
-        scalar: false,
-        prefetch: false,
-        gather,
-    };
-    let len = (0.3f32 * 0.3 + 0.4 * 0.4 + 0.85 * 0.85).sqrt();
-    let d = [0.3 / len, 0.4 / len, 0.85 / len];
-    let packets: Vec<Packet<LANES>> = (0..MEASURE_PACKETS)
-        .map(|p| Packet {
-            rays: std::array::from_fn(|j| IndexRay {
-                o: [
-                    1.5 + (p % 8 * 4 + j % 4) as f32 * 0.9,
-                    1.5 + (p / 8 * 4 + j / 4) as f32 * 0.9,
-                    0.5,
-                ],
-                d,
-                dir: d,
-            }),
-            k0: [0; LANES],
-            k1: [MEASURE_SAMPLES; LANES],
-            acc: [[0.0; 4]; LANES],
-        })
-        .collect();
+    let syn = Synthetic::new();
     let mut best = [Duration::MAX; 2];
     for _ in 0..MEASURE_ROUNDS {
         for (g, b) in best.iter_mut().enumerate() {
-            let p = params(g == 1);
-            let mut pk = packets.clone();
             let start = Instant::now();
-            for pk in &mut pk {
-                // SAFETY: the caller checked that the loop runs on this CPU; the table
-                // is this volume's (every cell occupied), padded; every ray's samples
-                // stay inside the volume.
-                std::hint::black_box(unsafe { march16::<i16, false>(&p, &tri, &tab, pk) });
-            }
+            std::hint::black_box(syn.march(g == 1));
             *b = (*b).min(start.elapsed());
-            std::hint::black_box(&pk);
         }
     }
     (best[0], best[1])
@@ -378,6 +442,38 @@ mod tests {
             });
             (q, eo, m)
         }
+    }
+
+    #[test]
+    fn the_measurement_marches_as_frames_do() {
+        if !super::super::packet16::available() {
+            println!("skipped: this CPU does not run the sixteen-lane loop");
+            return;
+        }
+        let syn = Synthetic::new();
+        let (lanes, st) = syn.march(false);
+        let (gathers, st_g) = syn.march(true);
+        // Both forms give the same pixels and take the same steps.
+        for (a, b) in lanes.iter().zip(&gathers) {
+            assert_eq!(a.acc, b.acc);
+        }
+        assert_eq!(
+            (st.samples, st.skipped, st.steps),
+            (st_g.samples, st_g.skipped, st_g.steps)
+        );
+        // Empty cells are leapt over: a fair share of the samples is skipped.
+        let all = (st.samples + st.skipped) as f64;
+        let skipped = st.skipped as f64 / all;
+        assert!((0.2..0.8).contains(&skipped), "skipped {skipped}");
+        // Of the samples taken, some are transparent: each opaque one composites an
+        // opacity of 0.05, so a ray's opacity is 1 − 0.95^opaque.
+        let opaque: f64 = lanes
+            .iter()
+            .flat_map(|p| p.acc.iter())
+            .map(|px| f64::from(1.0 - px[3]).ln() / 0.95f64.ln())
+            .sum();
+        let opaque = opaque / st.samples as f64;
+        assert!((0.3..0.9).contains(&opaque), "opaque {opaque}");
     }
 
     #[test]
