@@ -2,6 +2,7 @@
 
 use glam::DVec3;
 use pofvr::brick::{BrickGrid, BrickId};
+use pofvr::render::image::to_u8;
 use pofvr::render::{Camera, Image, PixelRect};
 
 /// Tint colour of culled footprints (magenta: absent from every built-in colour map).
@@ -46,7 +47,6 @@ pub fn rgba8_with_tint(image: &Image, tinted: &[PixelRect]) -> Vec<u8> {
             mask[y * w + (r.x0 as usize).min(w)..y * w + (r.x1 as usize).min(w)].fill(true);
         }
     }
-    let q = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
     for (px, src) in rgba
         .chunks_exact_mut(4)
         .zip(image.pixels())
@@ -56,7 +56,7 @@ pub fn rgba8_with_tint(image: &Image, tinted: &[PixelRect]) -> Vec<u8> {
     {
         // `src` is premultiplied, i.e. already the colour over black.
         for c in 0..3 {
-            px[c] = q(src[c] * (1.0 - TINT_ALPHA) + TINT[c] * TINT_ALPHA);
+            px[c] = to_u8(src[c] * (1.0 - TINT_ALPHA) + TINT[c] * TINT_ALPHA);
         }
         px[3] = 255;
     }

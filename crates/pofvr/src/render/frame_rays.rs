@@ -89,7 +89,11 @@ impl FrameRays {
     }
 
     /// The index ray of pixel `(x, y)`, as [`super::RayCaster::pixel_ray`] gives it.
-    #[inline]
+    ///
+    /// Always inlined: the packet loop's set-up calls it sixteen times per packet, and as
+    /// a call (which an unrelated edit elsewhere in the crate once made it) it took 3 % of
+    /// a 512² frame (`docs/results.md`, stop 39).
+    #[inline(always)]
     pub(crate) fn ray(&self, x: u32, y: u32) -> IndexRay {
         let p = self.cols[x as usize] + self.rows[y as usize];
         let ray = if self.perspective {

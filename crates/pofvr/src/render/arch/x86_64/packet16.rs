@@ -110,6 +110,70 @@ fn lambert16(g: [__m512; 3], spacing: [__m512; 3], dir: [__m512; 3]) -> __m512 {
     _mm512_mask_blend_ps(flat, l, _mm512_set1_ps(1.0))
 }
 
+/// [`super::packet`]'s `leap_end` on sixteen lanes, step for step: each lane's sample `k`
+/// lies in the empty cell `c` with entry `leap`; the first sample, in `k + 1 ..= k1`, past
+/// the cube of empty cells around it, every sample before it checked by the sampler's own
+/// cells. Lanes whose entry is below [`LEAP_MIN`] get the exit of their own cell.
+///
+/// A macro, expanded in [`march16`]: as a function (with `march16`'s target features, so
+/// that its closure `cells_at` could be inlined into it), whether it was inlined into
+/// `march16` depended on unrelated code elsewhere in the crate (an edit to the image
+/// conversion turned it into a call, `docs/results.md`, stop 39), and every leap then paid
+/// two calls with their vectors through memory (3–7 % of a frame, stop 31). A
+/// `#[target_feature]` function cannot be `#[inline(always)]`.
+macro_rules! leap_end {
+    ($kv:expr, $c:expr, $leap:expr, $r:expr, $cells_at:expr) => {{
+        let (kv, c, leap, r, cells_at): (__m512i, &[__m512i; 3], __m512i, &LeapRay, _) =
+            ($kv, $c, $leap, $r, $cells_at);
+        let one = _mm512_set1_epi32(1);
+        // The cube's half-width: distance − 1 where leaps are worth it, else the cell alone.
+        let far = _mm512_cmpgt_epi32_mask(leap, _mm512_set1_epi32(LEAP_MIN - 1));
+        let zero_i = _mm512_setzero_si512();
+        let rad = _mm512_mask_blend_epi32(far, zero_i, _mm512_sub_epi32(leap, one));
+        let zero = _mm512_setzero_ps();
+        let mut lo = [zero_i; 3];
+        let mut hi = [zero_i; 3];
+        let mut te = _mm512_set1_ps(f32::INFINITY);
+        for a in 0..3 {
+            lo[a] = _mm512_max_epi32(_mm512_sub_epi32(c[a], rad), zero_i);
+            hi[a] = _mm512_min_epi32(_mm512_add_epi32(c[a], rad), r.nlast[a]);
+            let pos = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(r.d[a], zero);
+            let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(r.d[a], zero);
+            let up = pos & _mm512_cmpgt_epi32_mask(r.nlast[a], hi[a]);
+            let down = neg & _mm512_cmpgt_epi32_mask(lo[a], zero_i);
+            let face = _mm512_mask_blend_epi32(
+                up,
+                _mm512_slli_epi32::<CELL_SHIFT>(lo[a]),
+                _mm512_slli_epi32::<CELL_SHIFT>(_mm512_add_epi32(hi[a], one)),
+            );
+            let ta = _mm512_mul_ps(_mm512_sub_ps(_mm512_cvtepi32_ps(face), r.o[a]), r.inv[a]);
+            let ta = _mm512_mask_blend_ps(up | down, _mm512_set1_ps(f32::INFINITY), ta);
+            te = _mm512_min_ps(te, ta);
+        }
+        // The first sample at or past `te`, and at least the next one.
+        let q = _mm512_max_ps(_mm512_min_ps(_mm512_mul_ps(te, r.inv_step), r.k1f), zero);
+        let kq = _mm512_cvttps_epi32(q);
+        let up = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(_mm512_cvtepi32_ps(kq), q);
+        let kb = _mm512_mask_blend_epi32(up, kq, _mm512_add_epi32(kq, one));
+        let kb = _mm512_min_epi32(_mm512_max_epi32(kb, _mm512_add_epi32(kv, one)), r.k1v);
+        let inside = |k: __m512i| {
+            let t = _mm512_mul_ps(_mm512_cvtepi32_ps(k), r.stepv);
+            let c = cells_at(t);
+            within(lo[0], c[0], hi[0]) & within(lo[1], c[1], hi[1]) & within(lo[2], c[2], hi[2])
+        };
+        // Settled by one sample where a rounding put the estimate past a face.
+        let kb1 = _mm512_sub_epi32(kb, one);
+        let in1 = inside(kb1);
+        if in1 == 0xFFFF {
+            kb
+        } else {
+            let in2 = inside(_mm512_sub_epi32(kb1, one));
+            let fallback = _mm512_mask_blend_epi32(in2, _mm512_add_epi32(kv, one), kb1);
+            _mm512_mask_blend_epi32(in1, fallback, kb)
+        }
+    }};
+}
+
 /// Marches `pk` front to back through the volume of `tri`, skipping the empty cells of
 /// `tab`, shaded when `SHADE` (then `p.shade` is set); see the [module](self) and
 /// [`super::packet::march8`], whose steps this follows one for one.
@@ -412,7 +476,7 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
             if empty != 0 {
                 // SAFETY: `lv` holds sixteen i32.
                 let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
-                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = leap_end!(kv, &cell, leap, &leap_ray, &cells_at);
                 let kb = _mm512_max_epi32(kb, next);
                 // Each lane leaps less than 2^24 samples (indices are exact in f32), so the
                 // sum over sixteen lanes fits an i32.
@@ -460,7 +524,7 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
                 // SAFETY: `lv` holds sixteen i32.
                 let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
                 // Every live lane is in an empty cell: the packet leaps.
-                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = leap_end!(kv, &cell, leap, &leap_ray, &cells_at);
                 let kb = _mm512_mask_blend_epi32(live, big, kb);
                 let kb = _mm512_min_epi32(kb, _mm512_mask_blend_epi32(pending, big, k0v));
                 let next = _mm512_reduce_min_epi32(kb).max(k + 1);
@@ -501,71 +565,6 @@ struct LeapRay {
     nlast: [__m512i; 3],
     stepv: __m512,
     inv_step: __m512,
-}
-
-/// [`super::packet`]'s `leap_end` on sixteen lanes, step for step: each lane's sample `k`
-/// lies in the empty cell `c` with entry `leap`; the first sample, in `k + 1 ..= k1`, past
-/// the cube of empty cells around it, every sample before it checked by the sampler's own
-/// cells. Lanes whose entry is below [`LEAP_MIN`] get the exit of their own cell.
-///
-/// It has [`march16`]'s target features, not just AVX-512 F: with fewer, `cells_at` (a
-/// closure of `march16`, which has them all) could not be inlined into it, nor it into
-/// `march16`, and every leap paid two calls with their vectors through memory (3–7 % of
-/// a frame, measured in `docs/results.md`).
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
-#[inline]
-fn leap_end(
-    kv: __m512i,
-    c: &[__m512i; 3],
-    leap: __m512i,
-    r: &LeapRay,
-    cells_at: &impl Fn(__m512) -> [__m512i; 3],
-) -> __m512i {
-    let one = _mm512_set1_epi32(1);
-    // The cube's half-width: distance − 1 where leaps are worth it, else the cell alone.
-    let far = _mm512_cmpgt_epi32_mask(leap, _mm512_set1_epi32(LEAP_MIN - 1));
-    let zero_i = _mm512_setzero_si512();
-    let rad = _mm512_mask_blend_epi32(far, zero_i, _mm512_sub_epi32(leap, one));
-    let zero = _mm512_setzero_ps();
-    let mut lo = [zero_i; 3];
-    let mut hi = [zero_i; 3];
-    let mut te = _mm512_set1_ps(f32::INFINITY);
-    for a in 0..3 {
-        lo[a] = _mm512_max_epi32(_mm512_sub_epi32(c[a], rad), zero_i);
-        hi[a] = _mm512_min_epi32(_mm512_add_epi32(c[a], rad), r.nlast[a]);
-        let pos = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(r.d[a], zero);
-        let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(r.d[a], zero);
-        let up = pos & _mm512_cmpgt_epi32_mask(r.nlast[a], hi[a]);
-        let down = neg & _mm512_cmpgt_epi32_mask(lo[a], zero_i);
-        let face = _mm512_mask_blend_epi32(
-            up,
-            _mm512_slli_epi32::<CELL_SHIFT>(lo[a]),
-            _mm512_slli_epi32::<CELL_SHIFT>(_mm512_add_epi32(hi[a], one)),
-        );
-        let ta = _mm512_mul_ps(_mm512_sub_ps(_mm512_cvtepi32_ps(face), r.o[a]), r.inv[a]);
-        let ta = _mm512_mask_blend_ps(up | down, _mm512_set1_ps(f32::INFINITY), ta);
-        te = _mm512_min_ps(te, ta);
-    }
-    // The first sample at or past `te`, and at least the next one.
-    let q = _mm512_max_ps(_mm512_min_ps(_mm512_mul_ps(te, r.inv_step), r.k1f), zero);
-    let kq = _mm512_cvttps_epi32(q);
-    let up = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(_mm512_cvtepi32_ps(kq), q);
-    let kb = _mm512_mask_blend_epi32(up, kq, _mm512_add_epi32(kq, one));
-    let kb = _mm512_min_epi32(_mm512_max_epi32(kb, _mm512_add_epi32(kv, one)), r.k1v);
-    let inside = |k: __m512i| {
-        let t = _mm512_mul_ps(_mm512_cvtepi32_ps(k), r.stepv);
-        let c = cells_at(t);
-        within(lo[0], c[0], hi[0]) & within(lo[1], c[1], hi[1]) & within(lo[2], c[2], hi[2])
-    };
-    // Settled by one sample where a rounding put the estimate past a face.
-    let kb1 = _mm512_sub_epi32(kb, one);
-    let in1 = inside(kb1);
-    if in1 == 0xFFFF {
-        return kb;
-    }
-    let in2 = inside(_mm512_sub_epi32(kb1, one));
-    let fallback = _mm512_mask_blend_epi32(in2, _mm512_add_epi32(kv, one), kb1);
-    _mm512_mask_blend_epi32(in1, fallback, kb)
 }
 
 /// Whether rays of index-space direction `d` are oblique to the lattice: further than
