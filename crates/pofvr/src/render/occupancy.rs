@@ -262,13 +262,7 @@ impl Occupancy {
                 }
             });
         let cells = ranges.cells;
-        let to_occupied = chessboard(&cell, true, cells, EMPTY_CAP);
-        let mut leap: Vec<u8> = cell
-            .par_iter()
-            .zip(&to_occupied)
-            .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
-            .collect();
-        leap.resize(leap.len() + LEAP_PAD, 0);
+        let leap = leap_table(&cell, cells);
         Occupancy { cells, cell, leap }
     }
 
@@ -300,6 +294,20 @@ impl Occupancy {
     }
 }
 
+/// The [`Occupancy::leaps`] of cells `cell` (occupied or not, x fastest) on a grid of
+/// `cells`: [`OCCUPIED`] for an occupied cell, else its chessboard distance to the
+/// nearest occupied one, capped; then [`LEAP_PAD`] zero bytes.
+pub(crate) fn leap_table(cell: &[bool], cells: [usize; 3]) -> Vec<u8> {
+    let to_occupied = chessboard(cell, true, cells, EMPTY_CAP);
+    let mut leap: Vec<u8> = cell
+        .par_iter()
+        .zip(&to_occupied)
+        .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
+        .collect();
+    leap.resize(leap.len() + LEAP_PAD, 0);
+    leap
+}
+
 /// Per cell of a grid of `dims`, the chessboard distance to the nearest cell whose `kind`
 /// is `seed` (0 for those cells), capped at `cap` (also where there is none).
 ///
@@ -308,7 +316,7 @@ impl Occupancy {
 /// indicator (0 or `cap`), then the same along y of that, then along z. Capped, the window
 /// is `|j| < cap`; each pass is `2·(cap − 1)` runs of byte minima and maxima over shifted
 /// rows or slices, which the compiler vectorises.
-pub(crate) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
+pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
     let [nx, ny, _] = dims;
     let slice = nx * ny;
     let mut d: Vec<u8> = kind

@@ -27,7 +27,7 @@ use super::avx2::Gather8;
 use super::packet::{Packet, PacketStats, PacketTables};
 use super::packet16::{march16, LANES};
 use crate::render::lattice::IndexRay;
-use crate::render::occupancy::{chessboard, CELL, LEAP_PAD, OCCUPIED};
+use crate::render::occupancy::{leap_table, CELL};
 use crate::render::sampler::TrilinearSampler;
 use crate::render::transfer_function::{ClassifierView, BIN_MAX, TF_BINS};
 
@@ -241,12 +241,7 @@ impl Synthetic {
                 })
             })
             .collect();
-        let mut leap: Vec<u8> = chessboard(&occupied, true, [cells; 3], 8)
-            .into_iter()
-            .zip(&occupied)
-            .map(|(e, &o)| if o { OCCUPIED } else { e })
-            .collect();
-        leap.resize(leap.len() + LEAP_PAD, 0);
+        let leap = leap_table(&occupied, [cells; 3]);
         let len = (0.3f32 * 0.3 + 0.4 * 0.4 + 0.85 * 0.85).sqrt();
         let d = [0.3 / len, 0.4 / len, 0.85 / len];
         let packets = (0..MEASURE_PACKETS)
