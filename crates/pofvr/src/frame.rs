@@ -457,8 +457,8 @@ pub struct FrameStats {
     /// (by default where the voxels exceed the last-level cache; `POFVR_PREFETCH=on|off`
     /// overrides it); false for the other engines. The image is the same either way.
     pub march_prefetch: bool,
-    /// Whether the march engine's sixteen-lane packet loop loaded its corners and table
-    /// entries by gathers (by default where they measured faster on this CPU;
+    /// Whether the march engine's packet loop (sixteen lanes or eight) loaded its corners
+    /// and table entries by gathers (by default where they measured faster in it on this CPU;
     /// `POFVR_GATHER=on|off` overrides it); false for the other engines and loops. The
     /// image is the same either way.
     pub march_gather: bool,
@@ -755,7 +755,7 @@ pub(crate) fn march_with(
     stats.occupancy_ms = occupancy_ms;
     stats.march_simd = Some(st.simd);
     stats.march_prefetch = caster.prefetch() && st.packet_steps > 0;
-    stats.march_gather = caster.gather() && st.simd == "avx512";
+    stats.march_gather = caster.gather() && matches!(st.simd, "avx512" | "avx2");
     // No brick is culled, and none is projected: every non-empty one counts as visible.
     let empty = job
         .grid

@@ -128,7 +128,7 @@ impl<'a> RayCaster<'a> {
                 prefetch: arch::prefetch_pays(
                     volume.data().len() * volume.data().data_type().size(),
                 ),
-                gather: arch::gather_pays(),
+                gather: arch::gather_pays(arch::avx512_available()),
             },
             rays: OnceLock::new(),
         }
@@ -136,20 +136,26 @@ impl<'a> RayCaster<'a> {
 
     /// The same caster with the AVX2 loops on or off (on only where the CPU has it), and
     /// with them the march engine's AVX-512 packets (on where the CPU has them too): every
-    /// loop gives the same image, bit for bit; this is for comparing them.
+    /// loop gives the same image, bit for bit; this is for comparing them. The packet loop
+    /// that then runs loads by gathers where they measured faster in it
+    /// ([`RayCaster::with_gather`] chooses otherwise).
     #[must_use]
     pub fn with_avx2(mut self, on: bool) -> Self {
         self.params.avx2 = on && arch::avx2_available();
         self.params.avx512 = self.params.avx2 && arch::avx512_available();
+        self.params.gather = self.params.avx2 && arch::gather_pays(self.params.avx512);
         self
     }
 
     /// The same caster with the march engine's AVX-512 packets of sixteen rays on (only
     /// where the CPU has them and the AVX2 loops are on) or off (packets of eight on AVX2):
-    /// the same image, bit for bit; this is for comparing them.
+    /// the same image, bit for bit; this is for comparing them. The packet loop that then
+    /// runs loads by gathers where they measured faster in it ([`RayCaster::with_gather`]
+    /// chooses otherwise).
     #[must_use]
     pub fn with_avx512(mut self, on: bool) -> Self {
         self.params.avx512 = on && self.params.avx2 && arch::avx512_available();
+        self.params.gather = self.params.avx2 && arch::gather_pays(self.params.avx512);
         self
     }
 
@@ -163,18 +169,18 @@ impl<'a> RayCaster<'a> {
         self
     }
 
-    /// The same caster with the march engine's sixteen-lane packet loop loading its
-    /// corners and table entries by gathers (`on`, where the CPU runs that loop) or lane
-    /// by lane: the same image, bit for bit. By default it gathers where gathers measured
-    /// faster on this CPU (or as `POFVR_GATHER=on|off` says); this is for comparing the two.
+    /// The same caster with the march engine's packet loops (sixteen lanes or eight)
+    /// loading their corners and table entries by gathers (`on`, where the CPU runs a
+    /// packet loop) or lane by lane: the same image, bit for bit. By default the loop that
+    /// runs gathers where gathers measured faster in it on this CPU (or as
+    /// `POFVR_GATHER=on|off` says); this is for comparing the two.
     #[must_use]
     pub fn with_gather(mut self, on: bool) -> Self {
-        self.params.gather = on && arch::avx512_available();
+        self.params.gather = on && self.params.avx2;
         self
     }
 
-    /// Whether the sixteen-lane packet loop loads by gathers (see
-    /// [`RayCaster::with_gather`]).
+    /// Whether the packet loop loads by gathers (see [`RayCaster::with_gather`]).
     #[must_use]
     pub fn gather(&self) -> bool {
         self.params.gather

@@ -34,7 +34,9 @@ fn compare(
         (true, true, true, false),
         (true, true, true, true),
         (true, false, false, false),
+        (true, false, false, true),
         (true, false, true, false),
+        (true, false, true, true),
         (false, false, false, false),
     ] {
         let caster = RayCaster::new(vol, &cls, settings)
@@ -653,18 +655,25 @@ fn prefetching_is_on_only_for_volumes_larger_than_the_cache() {
 }
 
 #[test]
-fn gathers_are_taken_only_where_the_sixteen_lane_loop_runs() {
+fn gathers_are_taken_only_where_a_packet_loop_runs() {
     let (vol, cls) = classified_head();
     let caster = || RayCaster::new(&vol, &cls, RenderSettings::default());
-    // Asked for, they are on exactly where the loop can run; off, off everywhere.
-    assert_eq!(
-        caster().with_gather(true).gather(),
-        arch::avx512_available()
-    );
+    // Asked for, they are on exactly where a packet loop can run; off, off everywhere.
+    assert_eq!(caster().with_gather(true).gather(), arch::avx2_available());
     assert!(!caster().with_gather(false).gather());
-    // By default, as measured (or as POFVR_GATHER says), and never without the loop.
-    assert_eq!(caster().gather(), arch::gather_pays());
-    if !arch::avx512_available() {
+    assert!(!caster().with_avx2(false).with_gather(true).gather());
+    // By default, as measured for the loop that runs (or as POFVR_GATHER says), and never
+    // without a packet loop.
+    assert_eq!(
+        caster().gather(),
+        arch::gather_pays(arch::avx512_available())
+    );
+    assert_eq!(
+        caster().with_avx512(false).gather(),
+        arch::gather_pays(false)
+    );
+    assert!(!caster().with_avx2(false).gather());
+    if !arch::avx2_available() {
         assert!(!caster().gather());
     }
 }

@@ -37,9 +37,9 @@ pub(crate) struct MarchParams<'c> {
     /// (`x86_64::prefetch`: by default, where the voxels exceed the last-level cache).
     /// Prefetches change no result.
     pub(crate) prefetch: bool,
-    /// Whether the sixteen-lane packet loop loads its corners and table entries by
-    /// gathers (`x86_64::gather16`: by default, where they measured faster than loads
-    /// lane by lane). Either form reads the same words.
+    /// Whether the packet loop that runs (sixteen lanes or eight) loads its corners and
+    /// table entries by gathers (`x86_64::gather`: by default, where they measured faster
+    /// than loads lane by lane in that loop). Either form reads the same words.
     pub(crate) gather: bool,
 }
 
@@ -85,13 +85,16 @@ pub(crate) fn prefetch_pays(voxel_bytes: usize) -> bool {
     }
 }
 
-/// Whether the sixteen-lane packet loop should load by gathers on this CPU
-/// (`x86_64::gather16::pays`; never where there is no such loop).
-pub(crate) fn gather_pays() -> bool {
+/// Whether the march engine's packet loop of sixteen lanes (`sixteen`) or of eight should
+/// load by gathers on this CPU (`x86_64::gather::pays`; never where there is no such loop).
+pub(crate) fn gather_pays(sixteen: bool) -> bool {
     #[cfg(target_arch = "x86_64")]
-    return x86_64::gather16::pays();
+    return x86_64::gather::pays(sixteen);
     #[cfg(not(target_arch = "x86_64"))]
-    false
+    {
+        let _ = sixteen;
+        false
+    }
 }
 
 /// Composites samples `range` of `ray` behind `acc`; returns the samples taken. Every

@@ -22,11 +22,11 @@
 use std::arch::x86_64::{
     __m128, __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_si256,
     _mm256_castsi256_ps, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32,
-    _mm256_i32gather_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps,
-    _mm256_mullo_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps,
-    _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srai_epi32, _mm256_srli_epi32,
-    _mm256_storeu_si256, _mm256_sub_ps, _mm_add_ps, _mm_loadu_ps, _mm_mul_ps, _mm_set1_ps,
-    _mm_storeu_ps,
+    _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps,
+    _mm256_mul_ps, _mm256_mullo_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32,
+    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srai_epi32,
+    _mm256_srli_epi32, _mm256_storeu_si256, _mm256_sub_ps, _mm_add_ps, _mm_loadu_ps, _mm_mul_ps,
+    _mm_set1_ps, _mm_storeu_ps,
 };
 
 use super::super::generic::{AMBIENT, DIFFUSE};
@@ -60,6 +60,18 @@ pub(crate) trait Gather8: Voxel {
     /// AVX2 is available; for every lane `base + sx + sy + sz + OVERREAD < v.len()`, and
     /// `sx == 1` where `UNIT_X` is true.
     unsafe fn corners8(v: &[Self], base: __m256i, step: [usize; 3]) -> [__m256; 8];
+
+    /// [`Gather8::corners8`] by `vpgatherdd`, one instruction per word for the eight lanes
+    /// (the packet loop's form where gathers measured faster, `super::gather`): the same
+    /// words, so the same corners. f32 corners are gathered either way.
+    ///
+    /// # Safety
+    /// As [`Gather8::corners8`].
+    #[inline(always)]
+    unsafe fn corners8_gathered(v: &[Self], base: __m256i, step: [usize; 3]) -> [__m256; 8] {
+        // SAFETY: the caller's.
+        unsafe { Self::corners8(v, base, step) }
+    }
 }
 
 /// The four 32-bit words at elements `base`, `base + sy`, `base + sz`, `base + sy + sz`,
@@ -92,6 +104,26 @@ unsafe fn words<T>(v: &[T], base: __m256i, sy: usize, sz: usize) -> [__m256i; 4]
     }
 }
 
+/// The words of [`words`] by four `vpgatherdd`, for elements `S` bytes wide.
+///
+/// # Safety
+/// AVX2 is available; every word lies inside `v`'s allocation; offsets are below 2^31
+/// ([`fits`]).
+#[inline(always)]
+unsafe fn words_gathered<T, const S: i32>(
+    v: &[T],
+    base: __m256i,
+    sy: usize,
+    sz: usize,
+) -> [__m256i; 4] {
+    let p = v.as_ptr().cast::<i32>();
+    // SAFETY: the caller's.
+    let at = |off: usize| unsafe {
+        _mm256_i32gather_epi32::<S>(p, _mm256_add_epi32(base, _mm256_set1_epi32(off as i32)))
+    };
+    [at(0), at(sy), at(sz), at(sy + sz)]
+}
+
 /// The corners of [`Gather8::corners8`] from the four words of [`words`]: `lo` and `hi`
 /// take a word's corner and its x neighbour.
 #[inline(always)]
@@ -113,6 +145,52 @@ fn pairs(
     ]
 }
 
+/// 8-bit corners from their words: a corner in the low byte, its x neighbour above it.
+///
+/// # Safety
+/// AVX2 is available.
+#[inline(always)]
+unsafe fn u8_pairs(w: [__m256i; 4]) -> [__m256; 8] {
+    // SAFETY: the caller's.
+    unsafe {
+        let m = _mm256_set1_epi32(0xFF);
+        let lo = |w| _mm256_cvtepi32_ps(_mm256_and_si256(w, m));
+        let hi = |w| _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32::<8>(w), m));
+        pairs(w, lo, hi)
+    }
+}
+
+/// Unsigned 16-bit corners from their words: a corner in the low half, its x neighbour in
+/// the high one.
+///
+/// # Safety
+/// AVX2 is available.
+#[inline(always)]
+unsafe fn u16_pairs(w: [__m256i; 4]) -> [__m256; 8] {
+    // SAFETY: the caller's.
+    unsafe {
+        let m = _mm256_set1_epi32(0xFFFF);
+        let lo = |w| _mm256_cvtepi32_ps(_mm256_and_si256(w, m));
+        let hi = |w| _mm256_cvtepi32_ps(_mm256_srli_epi32::<16>(w));
+        pairs(w, lo, hi)
+    }
+}
+
+/// Signed 16-bit corners from their words, as [`u16_pairs`]: arithmetic shifts
+/// sign-extend each half.
+///
+/// # Safety
+/// AVX2 is available.
+#[inline(always)]
+unsafe fn i16_pairs(w: [__m256i; 4]) -> [__m256; 8] {
+    // SAFETY: the caller's.
+    unsafe {
+        let lo = |w| _mm256_cvtepi32_ps(_mm256_srai_epi32::<16>(_mm256_slli_epi32::<16>(w)));
+        let hi = |w| _mm256_cvtepi32_ps(_mm256_srai_epi32::<16>(w));
+        pairs(w, lo, hi)
+    }
+}
+
 impl Gather8 for u8 {
     const UNIT_X: bool = true;
     const OVERREAD: usize = 2;
@@ -121,13 +199,13 @@ impl Gather8 for u8 {
     unsafe fn corners8(v: &[u8], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
         // SAFETY: each 32-bit word starts at a corner and ends OVERREAD bytes past its x
         // neighbour (caller).
-        unsafe {
-            let w = words(v, base, sy, sz);
-            let m = _mm256_set1_epi32(0xFF);
-            let lo = |w| _mm256_cvtepi32_ps(_mm256_and_si256(w, m));
-            let hi = |w| _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32::<8>(w), m));
-            pairs(w, lo, hi)
-        }
+        unsafe { u8_pairs(words(v, base, sy, sz)) }
+    }
+
+    #[inline(always)]
+    unsafe fn corners8_gathered(v: &[u8], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
+        // SAFETY: as `corners8`.
+        unsafe { u8_pairs(words_gathered::<u8, 1>(v, base, sy, sz)) }
     }
 }
 
@@ -138,13 +216,13 @@ impl Gather8 for u16 {
     #[inline(always)]
     unsafe fn corners8(v: &[u16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
         // SAFETY: each 32-bit word is a corner and its x neighbour (caller).
-        unsafe {
-            let w = words(v, base, sy, sz);
-            let m = _mm256_set1_epi32(0xFFFF);
-            let lo = |w| _mm256_cvtepi32_ps(_mm256_and_si256(w, m));
-            let hi = |w| _mm256_cvtepi32_ps(_mm256_srli_epi32::<16>(w));
-            pairs(w, lo, hi)
-        }
+        unsafe { u16_pairs(words(v, base, sy, sz)) }
+    }
+
+    #[inline(always)]
+    unsafe fn corners8_gathered(v: &[u16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
+        // SAFETY: as `corners8`.
+        unsafe { u16_pairs(words_gathered::<u16, 2>(v, base, sy, sz)) }
     }
 }
 
@@ -155,13 +233,13 @@ impl Gather8 for i16 {
     #[inline(always)]
     unsafe fn corners8(v: &[i16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
         // SAFETY: each 32-bit word is a corner and its x neighbour (caller).
-        unsafe {
-            let w = words(v, base, sy, sz);
-            // Arithmetic shifts sign-extend each half.
-            let lo = |w| _mm256_cvtepi32_ps(_mm256_srai_epi32::<16>(_mm256_slli_epi32::<16>(w)));
-            let hi = |w| _mm256_cvtepi32_ps(_mm256_srai_epi32::<16>(w));
-            pairs(w, lo, hi)
-        }
+        unsafe { i16_pairs(words(v, base, sy, sz)) }
+    }
+
+    #[inline(always)]
+    unsafe fn corners8_gathered(v: &[i16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
+        // SAFETY: as `corners8`.
+        unsafe { i16_pairs(words_gathered::<i16, 2>(v, base, sy, sz)) }
     }
 }
 

@@ -1,35 +1,17 @@
 //! The sixteen-lane loop's loads by `vpgatherdd`: a cell's corners, the classification's
 //! entries and the occupancy's, one gather instruction per word for all sixteen lanes,
 //! where the other form ([`super::avx2`]'s `words`, `rgba8`, a scalar lookup loop) loads
-//! each lane's word on its own and inserts it into a vector.
-//!
-//! Which form is faster depends on the core. On the Intel development VM (AVX-512, no
-//! gather microcode mitigation) a sixteen-lane gather costs a fraction of sixteen loads
-//! and inserts, and the frames of every catalogued volume took 10–25 % less
-//! (`docs/results.md`, "Stop 38"); eight-lane gathers in the AVX2 loops gained nothing
-//! there, and on cores whose gathers are microcoded or mitigated (older Intel, AMD
-//! before Zen 5) they are known to lose. So the choice is measured once per process
-//! ([`pays`]): both forms fetch the corners of the same random cells of a synthetic
-//! volume, and the gathers are taken only where they are clearly faster.
-//! `POFVR_GATHER=on|off` overrides the measurement. Both forms read the same words, so
-//! the image is the same either way.
+//! each lane's word on its own and inserts it into a vector. Which form a process takes is
+//! measured ([`super::gather`]); both read the same words, so the image is the same
+//! either way.
 
 use std::arch::x86_64::{
     __m512, __m512i, __mmask16, _mm512_add_epi32, _mm512_and_si512, _mm512_cvtepi32_ps,
     _mm512_i32gather_epi32, _mm512_i32gather_ps, _mm512_set1_epi32, _mm512_slli_epi32,
     _mm512_srai_epi32, _mm512_srli_epi32, _mm512_test_epi32_mask,
 };
-use std::sync::OnceLock;
-use std::time::{Duration, Instant};
 
-use super::super::MarchParams;
 use super::avx2::Gather8;
-use super::packet::{Packet, PacketStats, PacketTables};
-use super::packet16::{march16, LANES};
-use crate::render::lattice::IndexRay;
-use crate::render::occupancy::{leap_table, CELL};
-use crate::render::sampler::TrilinearSampler;
-use crate::render::transfer_function::{ClassifierView, BIN_MAX, TF_BINS};
 
 /// Voxel types whose cell corners the sixteen-lane loop can gather.
 pub(crate) trait Gather16: Gather8 {
@@ -168,167 +150,9 @@ pub(crate) unsafe fn leaps16(leap: &[u8], idx: __m512i, occupied: u8) -> (__m512
     )
 }
 
-/// Whether the sixteen-lane loop loads by gathers: as `POFVR_GATHER` says (`on`, `off`),
-/// else as measured once per process ([`measure`]). False where the loop cannot run.
-pub(crate) fn pays() -> bool {
-    static PAYS: OnceLock<bool> = OnceLock::new();
-    *PAYS.get_or_init(|| match std::env::var("POFVR_GATHER").as_deref() {
-        Ok(s) if s.eq_ignore_ascii_case("on") => super::packet16::available(),
-        Ok(s) if s.eq_ignore_ascii_case("off") => false,
-        _ => {
-            super::packet16::available() && {
-                let (lanes, gathers) = measure();
-                gathers.as_secs_f64() < GATHER_MARGIN * lanes.as_secs_f64()
-            }
-        }
-    })
-}
-
-/// How much faster than the per-lane loads the gathers must be to be taken: a choice
-/// that wins by less is within what this measurement can tell on a busy machine (its
-/// timings spread by about 3 % from one process to the next).
-const GATHER_MARGIN: f64 = 0.95;
-
-/// Voxels per axis of the synthetic volume [`measure`] marches (256 KiB of i16: in L2,
-/// as most of a frame's loads are, so that what is timed is the loop, not the memory).
-const MEASURE_N: usize = 64;
-/// Packets per timing, samples per ray, and timings per form.
-const MEASURE_PACKETS: usize = 32;
-const MEASURE_SAMPLES: i32 = 48;
-const MEASURE_ROUNDS: usize = 7;
-/// The synthetic volume's values up to which the classification is opaque (bins below
-/// `TF_BINS / 2`, values 0–1023 over the table): about half of each ray.
-const OPAQUE_BELOW: i16 = 512;
-
-/// What [`measure`] marches: a synthetic volume and classification shaped like a frame's,
-/// in miniature. Values run in diagonal bands, so about half of each ray is opaque, and
-/// half of the cells are empty and leapt over; neighbouring rays see the same bands, so,
-/// as in frames, many steps find every lane's sample transparent and fetch no colour.
-/// (A first version, every cell occupied and every sample opaque, timed the gathers at
-/// 0.86–0.92 of the per-lane loads on a core where frames took 0.63–1.03: too close to
-/// the margin to decide the same way in every process, `docs/results.md`, stop 39.)
-struct Synthetic {
-    v: Vec<i16>,
-    rgba: Vec<[f32; 4]>,
-    leap: Vec<u8>,
-    packets: Vec<Packet<LANES>>,
-}
-
-impl Synthetic {
-    fn new() -> Self {
-        let n = MEASURE_N;
-        let v: Vec<i16> = (0..n * n * n)
-            .map(|i| ((i % n * 3 + i / n % n * 5 + i / (n * n) * 7) * 2 % 1024) as i16)
-            .collect();
-        // Values 0–1023 over the table: bins below the middle are opaque.
-        let rgba: Vec<[f32; 4]> = (0..TF_BINS)
-            .map(|b| {
-                if b < TF_BINS / 2 {
-                    [0.05, 0.04, 0.03, 0.05]
-                } else {
-                    [0.0; 4]
-                }
-            })
-            .collect();
-        let cells = (n - 1).div_ceil(CELL);
-        // A cell is occupied where some corner of its trilinear cells is opaque.
-        let occupied: Vec<bool> = (0..cells * cells * cells)
-            .map(|c| {
-                let at = [c % cells, c / cells % cells, c / (cells * cells)].map(|a| a * CELL);
-                let span = |a: usize| at[a]..=(at[a] + CELL).min(n - 1);
-                span(2).any(|z| {
-                    span(1).any(|y| span(0).any(|x| v[(z * n + y) * n + x] <= OPAQUE_BELOW))
-                })
-            })
-            .collect();
-        let leap = leap_table(&occupied, [cells; 3]);
-        let len = (0.3f32 * 0.3 + 0.4 * 0.4 + 0.85 * 0.85).sqrt();
-        let d = [0.3 / len, 0.4 / len, 0.85 / len];
-        let packets = (0..MEASURE_PACKETS)
-            .map(|p| Packet {
-                rays: std::array::from_fn(|j| IndexRay {
-                    o: [
-                        1.5 + (p % 8 * 4 + j % 4) as f32 * 0.9,
-                        1.5 + (p / 8 * 4 + j / 4) as f32 * 0.9,
-                        0.5,
-                    ],
-                    d,
-                    dir: d,
-                }),
-                k0: [0; LANES],
-                k1: [MEASURE_SAMPLES; LANES],
-                acc: [[0.0; 4]; LANES],
-            })
-            .collect();
-        Synthetic {
-            v,
-            rgba,
-            leap,
-            packets,
-        }
-    }
-
-    /// Marches every packet with gathers or without; the packets as they end, and the
-    /// stats summed.
-    fn march(&self, gather: bool) -> (Vec<Packet<LANES>>, PacketStats) {
-        let n = MEASURE_N;
-        let tri = TrilinearSampler::new(&self.v, [n; 3]);
-        let cells = (n - 1).div_ceil(CELL) as i32;
-        let tab = PacketTables {
-            leap: &self.leap,
-            cells: [cells; 3],
-        };
-        let p = MarchParams {
-            cls: ClassifierView {
-                lo: 0.0,
-                scale: BIN_MAX / 1024.0,
-                rgba: &self.rgba,
-            },
-            step: 1.0,
-            ert: 2.0,
-            shade: None,
-            avx2: true,
-            avx512: true,
-            scalar: false,
-            prefetch: false,
-            gather,
-        };
-        let mut pk = self.packets.clone();
-        let mut sum = PacketStats::default();
-        for pk in &mut pk {
-            // SAFETY: the callers checked that the loop runs on this CPU; the table is
-            // this volume's, padded; every ray's samples stay inside the volume.
-            let st = std::hint::black_box(unsafe { march16::<i16, false>(&p, &tri, &tab, pk) });
-            sum.samples += st.samples;
-            sum.skipped += st.skipped;
-            sum.steps += st.steps;
-        }
-        (pk, sum)
-    }
-}
-
-/// The least time, over [`MEASURE_ROUNDS`] interleaved timings each, that the sixteen-lane
-/// loop takes to march the packets of [`Synthetic`] (oblique rays, none terminating),
-/// loading lane by lane and by gathers (a few milliseconds in all). Timing the loads alone
-/// would not do: they cost about the same on their own, and what the gathers save in the
-/// loop is the inserts and extracts that compete with its other shuffles, and the colour
-/// of steps whose samples are all transparent. Only where the sixteen-lane loop runs.
-fn measure() -> (Duration, Duration) {
-    let syn = Synthetic::new();
-    let mut best = [Duration::MAX; 2];
-    for _ in 0..MEASURE_ROUNDS {
-        for (g, b) in best.iter_mut().enumerate() {
-            let start = Instant::now();
-            std::hint::black_box(syn.march(g == 1));
-            *b = (*b).min(start.elapsed());
-        }
-    }
-    (best[0], best[1])
-}
-
 #[cfg(test)]
 mod tests {
-    use super::super::packet16::{halves, join};
+    use super::super::packet16::{halves, join, LANES};
     use super::*;
     use std::arch::x86_64::_mm512_loadu_epi32;
 
@@ -437,55 +261,5 @@ mod tests {
             });
             (q, eo, m)
         }
-    }
-
-    #[test]
-    fn the_measurement_marches_as_frames_do() {
-        if !super::super::packet16::available() {
-            println!("skipped: this CPU does not run the sixteen-lane loop");
-            return;
-        }
-        let syn = Synthetic::new();
-        let (lanes, st) = syn.march(false);
-        let (gathers, st_g) = syn.march(true);
-        // Both forms give the same pixels and take the same steps.
-        for (a, b) in lanes.iter().zip(&gathers) {
-            assert_eq!(a.acc, b.acc);
-        }
-        assert_eq!(
-            (st.samples, st.skipped, st.steps),
-            (st_g.samples, st_g.skipped, st_g.steps)
-        );
-        // Empty cells are leapt over: a fair share of the samples is skipped.
-        let all = (st.samples + st.skipped) as f64;
-        let skipped = st.skipped as f64 / all;
-        assert!((0.2..0.8).contains(&skipped), "skipped {skipped}");
-        // Of the samples taken, some are transparent: each opaque one composites an
-        // opacity of 0.05, so a ray's opacity is 1 − 0.95^opaque.
-        let opaque: f64 = lanes
-            .iter()
-            .flat_map(|p| p.acc.iter())
-            .map(|px| f64::from(1.0 - px[3]).ln() / 0.95f64.ln())
-            .sum();
-        let opaque = opaque / st.samples as f64;
-        assert!((0.3..0.9).contains(&opaque), "opaque {opaque}");
-    }
-
-    #[test]
-    fn the_measurement_times_both_forms() {
-        if !super::super::packet16::available() {
-            println!("skipped: this CPU does not run the sixteen-lane loop");
-            return;
-        }
-        let (lanes, gathers) = measure();
-        println!("lanes {lanes:?} gathers {gathers:?}");
-        assert!(
-            lanes > Duration::ZERO && lanes < Duration::from_secs(1),
-            "{lanes:?}"
-        );
-        assert!(
-            gathers > Duration::ZERO && gathers < Duration::from_secs(1),
-            "{gathers:?}"
-        );
     }
 }

@@ -2,6 +2,7 @@
 //! for the last cells of the data, where the eight-lane gather would read past the end.
 
 pub(crate) mod avx2;
+pub(crate) mod gather;
 pub(crate) mod gather16;
 pub(crate) mod packet;
 pub(crate) mod packet16;
@@ -58,11 +59,18 @@ pub(crate) fn march_packet<T: Gather>(
     }
     // SAFETY: `avx2` is only set where the CPU has AVX2; `fits` was checked; the tables
     // are the caller's, built for this volume and classification.
+    // Oblique packets go lane by lane, those along an axis in lockstep (`packet16::oblique`):
+    // two functions, so that neither loop's code depends on the other's.
+    let first = (0..packet::LANES)
+        .find(|&j| pk.k1[j] > pk.k0[j])
+        .unwrap_or(0);
+    let oblique = packet16::oblique(&pk.rays[first].d);
     Some(unsafe {
-        if p.shade.is_some() {
-            packet::march8::<T, true>(p, tri, tab, pk)
-        } else {
-            packet::march8::<T, false>(p, tri, tab, pk)
+        match (p.shade.is_some(), oblique) {
+            (true, true) => packet::march8::<T, true, true>(p, tri, tab, pk),
+            (true, false) => packet::march8::<T, true, false>(p, tri, tab, pk),
+            (false, true) => packet::march8::<T, false, true>(p, tri, tab, pk),
+            (false, false) => packet::march8::<T, false, false>(p, tri, tab, pk),
         }
     })
 }

@@ -26,12 +26,12 @@ use std::arch::x86_64::{
     __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_ps, _mm256_and_si256,
     _mm256_andnot_si256, _mm256_blendv_ps, _mm256_castps_si256, _mm256_castsi256_ps, _mm256_cmp_ps,
     _mm256_cmpeq_epi32, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32, _mm256_div_ps,
-    _mm256_loadu_si256, _mm256_max_epi32, _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps,
-    _mm256_movemask_ps, _mm256_mul_ps, _mm256_mullo_epi32, _mm256_or_si256,
-    _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32,
-    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srli_epi32,
-    _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ,
-    _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
+    _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_loadu_si256, _mm256_max_epi32,
+    _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps,
+    _mm256_mullo_epi32, _mm256_or_si256, _mm256_permutevar8x32_epi32, _mm256_set1_epi32,
+    _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32,
+    _mm256_srli_epi32, _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps,
+    _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
 };
 
 use super::super::MarchParams;
@@ -108,7 +108,7 @@ fn hmin(v: __m256i) -> i32 {
 /// AVX2 is available and [`super::avx2::fits`] holds; `tab` was built for this volume
 /// and classification, with the padding it documents.
 #[target_feature(enable = "avx2")]
-pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
+pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
     tab: &PacketTables<'_>,
@@ -117,10 +117,11 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
     debug_assert!(super::avx2::fits(tri));
     debug_assert_eq!(SHADE, p.shade.is_some());
     let mut st = PacketStats::default();
-    let lane = |f: &dyn Fn(usize) -> f32| vec8(std::array::from_fn(f));
-    let o = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].o[a]));
-    let d = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].d[a]));
-    let dir = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].dir[a]));
+    // Lane-wise from the rays (plain closures: behind `&dyn Fn` they became calls, one
+    // per lane and axis of every packet, up to 9 % of a frame, `docs/results.md`, stop 41).
+    let o = [0, 1, 2].map(|a| vec8(pk.rays.each_ref().map(|r| r.o[a])));
+    let d = [0, 1, 2].map(|a| vec8(pk.rays.each_ref().map(|r| r.d[a])));
+    let dir = [0, 1, 2].map(|a| vec8(pk.rays.each_ref().map(|r| r.dir[a])));
     // `1 / d`, 0 where `d` is 0: for the leap estimates only.
     let inv = d.map(|d| {
         let zero = _mm256_cmp_ps::<_CMP_EQ_OQ>(d, _mm256_setzero_ps());
@@ -145,8 +146,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
     }
     let big = _mm256_set1_epi32(i32::MAX);
     let one = _mm256_set1_epi32(1);
-    let mut k = hmin(blend_i(big, k0v, has));
-    let mut acc = [0, 1, 2, 3].map(|c| lane(&|j| pk.acc[j][c]));
+    let mut acc = [0, 1, 2, 3].map(|c| vec8(pk.acc.map(|px| px[c])));
     let (step, ert) = (p.step, _mm256_set1_ps(p.ert));
     let stepv = _mm256_set1_ps(step);
     let inv_step = _mm256_set1_ps(1.0 / step);
@@ -174,6 +174,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
         // SAFETY: `off` holds eight i32.
         (unsafe { _mm256_loadu_si256(off.as_ptr().cast()) }, across)
     });
+    let gather = p.gather;
     let cls = p.cls;
     let rgba = cls.rgba.as_ptr().cast::<f32>();
     let (lo, scale, bin_max) = (
@@ -189,34 +190,31 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(_mm256_cvttps_epi32(c))
         })
     };
+    let leap_ray = LeapRay {
+        o,
+        d,
+        inv,
+        k1v,
+        k1f,
+        nlast,
+        stepv,
+        inv_step,
+    };
     // The occupancy cells of the last sample looked up (none yet), their entries, and
     // which of them are occupied, as bits.
     let mut last_idx = _mm256_set1_epi32(-1);
     let mut lv = [0i32; LANES];
     let mut occ_bits = 0u32;
-    // Every lane open as of an earlier sampling step (see `load_bits`).
-    let mut lag = 0xFFu32;
-    loop {
-        let kv = _mm256_set1_epi32(k);
-        // Lanes whose ray claims sample k and has not terminated.
-        let started = _mm256_cmpgt_epi32(_mm256_add_epi32(kv, one), k0v);
-        let before_end = _mm256_cmpgt_epi32(k1v, kv);
-        // As the reference's `acc[3] >= ert` stop, negated.
-        let open = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
-        let live = _mm256_and_si256(_mm256_and_si256(started, before_end), open);
-        // Lanes yet to start.
-        let pending = _mm256_andnot_si256(started, has);
-        let live_bits = bits(live);
-        if live_bits == 0 {
-            if bits(pending) == 0 {
-                break;
-            }
-            k = hmin(blend_i(big, k0v, pending));
-            continue;
-        }
-        // A live lane: this iteration samples or leaps.
-        st.steps += 1;
-        let t = _mm256_set1_ps(k as f32 * step);
+    let lane_bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    let mask_of = |m: u32| {
+        _mm256_cmpeq_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(m as i32), lane_bit),
+            lane_bit,
+        )
+    };
+    // Each lane's sample at `t`: its corners' base, fractions, occupancy cell per axis, and
+    // that cell's index in the table (lane-wise `TrilinearSampler::cell` and `Skip::cell`).
+    let locate = |t: __m256| {
         let mut base = _mm256_setzero_si256();
         let mut f = [zero; 3];
         let mut cell = [_mm256_setzero_si256(); 3];
@@ -236,137 +234,236 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool>(
             ),
             cell[0],
         );
-        // The entries of the previous sample's cells serve while no lane changed cell
-        // (most samples, as a cell is several samples long).
-        if bits(_mm256_cmpeq_epi32(idx, last_idx)) != 0xFF {
-            last_idx = idx;
-            let mut ci = [0u32; LANES];
-            // SAFETY: `ci` holds eight u32.
-            unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
-            // Scalar loads: the lanes' entries are wanted as bits, and eight byte loads
-            // cost less than a gather.
-            occ_bits = 0;
-            for (j, (&c, l)) in ci.iter().zip(&mut lv).enumerate() {
-                // SAFETY: every lane's cell is inside the grid (positions are clamped).
-                let e = unsafe { *tab.leap.get_unchecked(c as usize) };
-                *l = i32::from(e);
-                occ_bits |= u32::from(e & OCCUPIED != 0) << j;
-            }
+        (base, f, cell, idx)
+    };
+    // The entries of the lanes' cells at `idx`, and which are occupied, as bits: those of
+    // the previous lookup serve while no lane changed cell (most samples, as a cell is
+    // several samples long).
+    let lookup = |idx: __m256i, last_idx: &mut __m256i, lv: &mut [i32; LANES], occ: &mut u32| {
+        if bits(_mm256_cmpeq_epi32(idx, *last_idx)) == 0xFF {
+            return;
         }
-        if occ_bits & live_bits == 0 {
-            // SAFETY: `lv` holds eight i32.
-            let leap = unsafe { _mm256_loadu_si256(lv.as_ptr().cast()) };
-            // Every live lane is in an empty cell: the packet leaps.
-            let kb = leap_end(
-                kv,
-                &cell,
-                leap,
-                &LeapRay {
-                    o,
-                    d,
-                    inv,
-                    k1v,
-                    k1f,
-                    nlast,
-                    stepv,
-                    inv_step,
-                },
-                &cells_at,
+        *last_idx = idx;
+        if gather {
+            // SAFETY: every lane's cell is inside the grid (positions are clamped), and
+            // the table is padded for a word at its last entry; `lv` holds eight i32.
+            unsafe {
+                let (e, m) = leaps8(tab.leap, idx, OCCUPIED);
+                _mm256_storeu_si256(lv.as_mut_ptr().cast(), e);
+                *occ = m;
+            }
+            return;
+        }
+        let mut ci = [0u32; LANES];
+        // SAFETY: `ci` holds eight u32.
+        unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
+        // Scalar loads: the lanes' entries are wanted as bits, and eight byte loads
+        // cost less than a gather on cores whose gathers are slow.
+        *occ = 0;
+        for (j, (&c, l)) in ci.iter().zip(lv.iter_mut()).enumerate() {
+            // SAFETY: every lane's cell is inside the grid (positions are clamped).
+            let e = unsafe { *tab.leap.get_unchecked(c as usize) };
+            *l = i32::from(e);
+            *occ |= u32::from(e & OCCUPIED != 0) << j;
+        }
+    };
+    // Lanes outside `load` (those in empty cells) take the corners' base of a lane in it
+    // instead of their own: their samples classify to zero opacity whatever they read (the
+    // rule the leaps rest on), and the loads then hit lines already on their way in. They
+    // count as skipped, not as samples taken.
+    let redirect = |base: __m256i, load: u32| {
+        let src = _mm256_set1_epi32(load.trailing_zeros() as i32);
+        blend_i(_mm256_permutevar8x32_epi32(base, src), base, mask_of(load))
+    };
+    // One sample of the lanes in `need`, from bases `redirect` gave, composited into `acc`
+    // as the reference does: the same in lockstep and lane by lane. A macro, so that each
+    // loop gets it inline (as `packet16`'s).
+    macro_rules! sample {
+        ($base:expr, $f:expr, $need:expr, $acc:expr) => {{
+            let (base, f, need_bits, acc): (__m256i, [__m256; 3], u32, &mut [__m256; 4]) =
+                ($base, $f, $need, $acc);
+            // The lines these lanes will read `AHEAD_VOXELS` on.
+            if let Some((off, across)) = ahead {
+                let b = _mm256_add_epi32(base, off);
+                let b = _mm256_min_epi32(_mm256_max_epi32(b, _mm256_setzero_si256()), limit);
+                let mut at = [0i32; LANES];
+                // SAFETY: `at` holds eight i32.
+                unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), b) };
+                prefetch::lines(v, &at, across);
+            }
+            // SAFETY: every lane's position is clamped into the data, so its cell's
+            // corners are inside `v`; past `limit` the gather of a wider word would read
+            // past the end.
+            let c = unsafe {
+                if bits(_mm256_cmpgt_epi32(base, limit)) != 0 {
+                    corners_exact(v, base, tri.step)
+                } else if gather {
+                    T::corners8_gathered(v, base, tri.step)
+                } else {
+                    T::corners8(v, base, tri.step)
+                }
+            };
+            let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
+            let lerp = |a: __m256, b: __m256, w: __m256| {
+                _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w))
+            };
+            let c00 = lerp(c000, c100, f[0]);
+            let c10 = lerp(c010, c110, f[0]);
+            let c01 = lerp(c001, c101, f[0]);
+            let c11 = lerp(c011, c111, f[0]);
+            let c0 = lerp(c00, c10, f[1]);
+            let c1 = lerp(c01, c11, f[1]);
+            let value = lerp(c0, c1, f[2]);
+            // As `ClassifierView::sample`: `maxps` returns its second operand (0) for NaN.
+            let x = _mm256_min_ps(
+                _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(value, lo), scale), zero),
+                bin_max,
             );
-            let kb = blend_i(big, kb, live);
-            let kb = _mm256_min_epi32(kb, blend_i(big, k0v, pending));
-            let next = hmin(kb).max(k + 1);
-            st.skipped += u64::from(live_bits.count_ones()) * (next - k) as u64;
-            k = next;
-            continue;
-        }
-        // Lanes in empty cells read the corners of an occupied lane instead of their own:
-        // their samples classify to zero opacity whatever they read (the rule the leaps
-        // rest on), and the loads then hit lines already on their way in. They count as
-        // skipped, not as samples taken.
-        let need_bits = occ_bits & live_bits;
-        let lane_bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-        let need = _mm256_cmpeq_epi32(
-            _mm256_and_si256(_mm256_set1_epi32(need_bits as i32), lane_bit),
-            lane_bit,
-        );
-        // The lanes that load their own corners: those open as of an earlier sampling
-        // step (`lag`, as in `packet16`: so that this step's loads need not wait for the
-        // previous step's composite; a terminated lane loads once more, for nothing).
-        let load_bits = occ_bits
-            & bits(_mm256_and_si256(started, before_end))
-            & std::mem::replace(&mut lag, bits(open));
-        let load = _mm256_cmpeq_epi32(
-            _mm256_and_si256(_mm256_set1_epi32(load_bits as i32), lane_bit),
-            lane_bit,
-        );
-        let src = _mm256_set1_epi32(load_bits.trailing_zeros() as i32);
-        let base = blend_i(_mm256_permutevar8x32_epi32(base, src), base, load);
-        // The lines these lanes will read `AHEAD_VOXELS` on.
-        if let Some((off, across)) = ahead {
-            let b = _mm256_add_epi32(base, off);
-            let b = _mm256_min_epi32(_mm256_max_epi32(b, _mm256_setzero_si256()), limit);
-            let mut at = [0i32; LANES];
-            // SAFETY: `at` holds eight i32.
-            unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), b) };
-            prefetch::lines(v, &at, across);
-        }
-        // SAFETY: every lane's position is clamped into the data, so its cell's corners
-        // are inside `v`; past `limit` the gather of a wider word would read past the end.
-        let c = unsafe {
-            if bits(_mm256_cmpgt_epi32(base, limit)) == 0 {
-                T::corners8(v, base, tri.step)
-            } else {
-                corners_exact(v, base, tri.step)
+            let bin = _mm256_cvttps_epi32(x);
+            // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
+            // Gathers fetch the opacity first, and the colour only for a step in which
+            // some lane's sample is not transparent (the loads lane by lane come as whole
+            // entries, all four channels at once).
+            let (alpha, rgb) = unsafe {
+                if gather {
+                    (channel8(rgba, bin, 3), None)
+                } else {
+                    let [r, g, b, a] = rgba8(rgba, bin);
+                    (a, Some([r, g, b]))
+                }
+            };
+            let opaque = _mm256_and_ps(
+                _mm256_castsi256_ps(mask_of(need_bits)),
+                _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),
+            );
+            if _mm256_movemask_ps(opaque) != 0 {
+                // SAFETY: as above.
+                let mut s = rgb
+                    .unwrap_or_else(|| unsafe { std::array::from_fn(|c| channel8(rgba, bin, c)) });
+                if SHADE {
+                    // `Cell::gradient`, lane-wise.
+                    let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
+                    let (d01, d11) = (_mm256_sub_ps(c101, c001), _mm256_sub_ps(c111, c011));
+                    let (e0, e1) = (_mm256_sub_ps(c10, c00), _mm256_sub_ps(c11, c01));
+                    let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
+                    let g = [
+                        lerp(x0, x1, f[2]),
+                        lerp(e0, e1, f[2]),
+                        _mm256_sub_ps(c1, c0),
+                    ];
+                    let l = lambert8(g, spacing, dir);
+                    s = s.map(|s| _mm256_mul_ps(s, l));
+                }
+                let w = _mm256_sub_ps(_mm256_set1_ps(1.0), acc[3]);
+                for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
+                    *a = _mm256_blendv_ps(*a, _mm256_add_ps(*a, _mm256_mul_ps(w, s)), opaque);
+                }
             }
-        };
-        let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
-        let lerp = |a: __m256, b: __m256, w: __m256| {
-            _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w))
-        };
-        let c00 = lerp(c000, c100, f[0]);
-        let c10 = lerp(c010, c110, f[0]);
-        let c01 = lerp(c001, c101, f[0]);
-        let c11 = lerp(c011, c111, f[0]);
-        let c0 = lerp(c00, c10, f[1]);
-        let c1 = lerp(c01, c11, f[1]);
-        let value = lerp(c0, c1, f[2]);
-        // As `ClassifierView::sample`: `maxps` returns its second operand (0) for NaN.
-        let x = _mm256_min_ps(
-            _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(value, lo), scale), zero),
-            bin_max,
-        );
-        let bin = _mm256_cvttps_epi32(x);
-        // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
-        let [r, g, b, alpha] = unsafe { rgba8(rgba, bin) };
-        st.samples += u64::from(need_bits.count_ones());
-        st.skipped += u64::from((live_bits & !occ_bits).count_ones());
-        let opaque = _mm256_and_ps(
-            _mm256_castsi256_ps(need),
-            _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),
-        );
-        if _mm256_movemask_ps(opaque) != 0 {
-            let mut s = [r, g, b];
-            if SHADE {
-                // `Cell::gradient`, lane-wise.
-                let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
-                let (d01, d11) = (_mm256_sub_ps(c101, c001), _mm256_sub_ps(c111, c011));
-                let (e0, e1) = (_mm256_sub_ps(c10, c00), _mm256_sub_ps(c11, c01));
-                let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
-                let g = [
-                    lerp(x0, x1, f[2]),
-                    lerp(e0, e1, f[2]),
-                    _mm256_sub_ps(c1, c0),
-                ];
-                let l = lambert8(g, spacing, dir);
-                s = s.map(|s| _mm256_mul_ps(s, l));
+        }};
+    }
+    if OBLIQUE {
+        // Oblique rays: each lane at its own sample index, as in `packet16`. A lane in an
+        // empty cell leaps on its own (by the rule of `leap_end`, lane-wise), a lane in an
+        // occupied one samples, in the same iteration; each lane's samples are those of
+        // the lockstep loop below, in the same order, so the pixels are the same.
+        let mut kv = blend_i(k1v, k0v, has);
+        // The lanes open as of an earlier step choose the lanes that move, leap and load;
+        // `open`, this step's, those that composite and count (as in `packet16`).
+        let mut lag = 0xFFu32;
+        loop {
+            // As the reference's `acc[3] >= ert` stop, negated.
+            let open = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
+                acc[3], ert,
+            )));
+            // Lanes short of their last sample that were open a step ago.
+            let go =
+                bits(_mm256_cmpgt_epi32(k1v, kv)) & bits(has) & std::mem::replace(&mut lag, open);
+            let live = go & open;
+            if live == 0 {
+                break;
             }
-            let w = _mm256_sub_ps(_mm256_set1_ps(1.0), acc[3]);
-            for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
-                *a = _mm256_blendv_ps(*a, _mm256_add_ps(*a, _mm256_mul_ps(w, s)), opaque);
+            let t = _mm256_mul_ps(_mm256_cvtepi32_ps(kv), stepv);
+            let (base, f, cell, idx) = locate(t);
+            lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
+            let empty = go & !occ_bits;
+            let need = live & occ_bits;
+            let load = go & occ_bits;
+            let mut next = _mm256_add_epi32(kv, one);
+            st.steps += 1;
+            if empty != 0 {
+                // SAFETY: `lv` holds eight i32.
+                let leap = unsafe { _mm256_loadu_si256(lv.as_ptr().cast()) };
+                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = _mm256_max_epi32(kb, next);
+                let mut gone = [0i32; LANES];
+                // SAFETY: `gone` holds eight i32.
+                unsafe { _mm256_storeu_si256(gone.as_mut_ptr().cast(), _mm256_sub_epi32(kb, kv)) };
+                let el = empty & live;
+                st.skipped += (0..LANES)
+                    .filter(|j| el >> j & 1 != 0)
+                    .map(|j| gone[j] as u64)
+                    .sum::<u64>();
+                next = blend_i(next, kb, mask_of(empty));
             }
+            if need != 0 {
+                let base = redirect(base, load);
+                sample!(base, f, need, &mut acc);
+                st.samples += u64::from(need.count_ones());
+            }
+            kv = blend_i(kv, next, mask_of(go));
         }
-        k += 1;
+    } else {
+        // Rays along an axis: the packet in lockstep, at one sample index `k`.
+        let mut k = hmin(blend_i(big, k0v, has));
+        // Every lane open as of an earlier sampling step: they choose the loads, so that
+        // this step's loads need not wait for the previous step's composite (a terminated
+        // lane loads once more, for nothing).
+        let mut lag = 0xFFu32;
+        loop {
+            let kv = _mm256_set1_epi32(k);
+            // Lanes whose ray claims sample k and has not terminated.
+            let started = _mm256_cmpgt_epi32(_mm256_add_epi32(kv, one), k0v);
+            let before_end = _mm256_cmpgt_epi32(k1v, kv);
+            // As the reference's `acc[3] >= ert` stop, negated.
+            let open = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
+            let live = _mm256_and_si256(_mm256_and_si256(started, before_end), open);
+            // Lanes yet to start.
+            let pending = _mm256_andnot_si256(started, has);
+            let live_bits = bits(live);
+            if live_bits == 0 {
+                if bits(pending) == 0 {
+                    break;
+                }
+                k = hmin(blend_i(big, k0v, pending));
+                continue;
+            }
+            // A live lane: this iteration samples or leaps.
+            st.steps += 1;
+            let t = _mm256_set1_ps(k as f32 * step);
+            let (base, f, cell, idx) = locate(t);
+            lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
+            if occ_bits & live_bits == 0 {
+                // SAFETY: `lv` holds eight i32.
+                let leap = unsafe { _mm256_loadu_si256(lv.as_ptr().cast()) };
+                // Every live lane is in an empty cell: the packet leaps.
+                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = blend_i(big, kb, live);
+                let kb = _mm256_min_epi32(kb, blend_i(big, k0v, pending));
+                let next = hmin(kb).max(k + 1);
+                st.skipped += u64::from(live_bits.count_ones()) * (next - k) as u64;
+                k = next;
+                continue;
+            }
+            let need_bits = occ_bits & live_bits;
+            let load_bits = occ_bits
+                & bits(_mm256_and_si256(started, before_end))
+                & std::mem::replace(&mut lag, bits(open));
+            let base = redirect(base, load_bits);
+            sample!(base, f, need_bits, &mut acc);
+            st.samples += u64::from(need_bits.count_ones());
+            st.skipped += u64::from((live_bits & !occ_bits).count_ones());
+            k += 1;
+        }
     }
     let mut out = [[0f32; LANES]; 4];
     for (o, a) in out.iter_mut().zip(acc) {
@@ -410,6 +507,34 @@ pub(crate) unsafe fn rgba8(rgba: *const f32, bin: __m256i) -> [__m256; 4] {
         };
         [lo(u0, u2), hi(u0, u2), lo(u1, u3), hi(u1, u3)]
     }
+}
+
+/// Channel `c` (0–3: r, g, b, alpha) of the classification's entries (four floats each)
+/// at `bin`, by one gather: as [`rgba8`] gives it.
+///
+/// # Safety
+/// AVX2 is available; `c < 4`; `rgba` holds an entry for every lane's bin.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn channel8(rgba: *const f32, bin: __m256i, c: usize) -> __m256 {
+    // SAFETY: channel `c` of entry `b` is float `4b + c` of the table (caller).
+    unsafe { _mm256_i32gather_ps::<4>(rgba.add(c), _mm256_slli_epi32::<2>(bin)) }
+}
+
+/// The occupancy entries of cells `idx` by one gather, and which of them have `occupied`
+/// set, as bits.
+///
+/// # Safety
+/// AVX2 is available; `leap` holds every lane's cell and the three bytes after it
+/// (`Occupancy::leaps`' padding).
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn leaps8(leap: &[u8], idx: __m256i, occupied: u8) -> (__m256i, u32) {
+    // SAFETY: each 32-bit word starts at a lane's entry and stays inside `leap` (caller).
+    let w = unsafe { _mm256_i32gather_epi32::<1>(leap.as_ptr().cast(), idx) };
+    let e = _mm256_and_si256(w, _mm256_set1_epi32(0xFF));
+    let m = _mm256_set1_epi32(i32::from(occupied));
+    (e, bits(_mm256_cmpeq_epi32(_mm256_and_si256(e, m), m)))
 }
 
 /// `m ? b : a`, lane-wise on integers.
@@ -516,7 +641,10 @@ fn leap_end(
 ///
 /// # Safety
 /// For every lane `base + sx + sy + sz < v.len()`.
+// Never inlined: a cold path (the last cells of the data), kept out of the eight-lane
+// loop's code.
 #[target_feature(enable = "avx2")]
+#[inline(never)]
 pub(crate) unsafe fn corners_exact<T: Gather8>(
     v: &[T],
     base: __m256i,

@@ -191,10 +191,11 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     debug_assert!(super::avx2::fits(tri));
     debug_assert_eq!(SHADE, p.shade.is_some());
     let mut st = PacketStats::default();
-    let lane = |f: &dyn Fn(usize) -> f32| vec16(std::array::from_fn(f));
-    let o = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].o[a]));
-    let d = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].d[a]));
-    let dir = [0, 1, 2].map(|a| lane(&|j| pk.rays[j].dir[a]));
+    // Lane-wise from the rays (plain closures: behind `&dyn Fn` they became calls, one
+    // per lane and axis of every packet, up to 9 % of a frame, `docs/results.md`, stop 41).
+    let o = [0, 1, 2].map(|a| vec16(pk.rays.each_ref().map(|r| r.o[a])));
+    let d = [0, 1, 2].map(|a| vec16(pk.rays.each_ref().map(|r| r.d[a])));
+    let dir = [0, 1, 2].map(|a| vec16(pk.rays.each_ref().map(|r| r.dir[a])));
     // `1 / d`, 0 where `d` is 0: for the leap estimates only.
     let inv = d.map(|d| {
         let zero = _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(d, _mm512_setzero_ps());
@@ -221,7 +222,7 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     let one = _mm512_set1_epi32(1);
     let hmin =
         |m: __mmask16, v: __m512i| _mm512_reduce_min_epi32(_mm512_mask_blend_epi32(m, big, v));
-    let mut acc = [0, 1, 2, 3].map(|c| lane(&|j| pk.acc[j][c]));
+    let mut acc = [0, 1, 2, 3].map(|c| vec16(pk.acc.map(|px| px[c])));
     let (step, ert) = (p.step, _mm512_set1_ps(p.ert));
     let stepv = _mm512_set1_ps(step);
     let inv_step = _mm512_set1_ps(1.0 / step);
@@ -573,7 +574,7 @@ struct LeapRay {
 /// and its lanes read the same slices; oblique ones cross them at different indices, and
 /// a packet in lockstep would take the union of its lanes' steps, so each lane goes on
 /// its own.
-fn oblique(d: &[f32; 3]) -> bool {
+pub(super) fn oblique(d: &[f32; 3]) -> bool {
     let m = d.iter().fold(0f32, |m, x| m.max(x.abs()));
     let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
     m < OBLIQUE_COS * n
