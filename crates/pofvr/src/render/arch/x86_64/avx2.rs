@@ -270,6 +270,96 @@ impl Gather8 for f32 {
     }
 }
 
+/// A cell's trilinear interpolation, lane-wise, in the reference's order
+/// ([`crate::render::sampler::Cell`]): the x lerps, the y lerps, and the value, kept for
+/// [`gradient8`].
+pub(crate) struct Lerps8 {
+    pub(crate) c00: __m256,
+    pub(crate) c10: __m256,
+    pub(crate) c01: __m256,
+    pub(crate) c11: __m256,
+    pub(crate) c0: __m256,
+    pub(crate) c1: __m256,
+    pub(crate) value: __m256,
+}
+
+/// `a + (b − a)·w`, lane-wise (the reference's lerp: no fused multiply–add).
+///
+/// # Safety
+/// AVX is available.
+#[inline(always)]
+unsafe fn lerp8(a: __m256, b: __m256, w: __m256) -> __m256 {
+    // SAFETY: the caller's.
+    unsafe { _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w)) }
+}
+
+/// The trilinear value of corners `c` (as [`Gather8::corners8`] orders them) at
+/// fractions `f`, for the sample loops of one ray and of packets alike.
+///
+/// # Safety
+/// AVX is available.
+#[inline(always)]
+pub(crate) unsafe fn trilinear8(c: &[__m256; 8], f: &[__m256; 3]) -> Lerps8 {
+    let [c000, c100, c010, c110, c001, c101, c011, c111] = *c;
+    // SAFETY: the caller's.
+    unsafe {
+        let (c00, c10) = (lerp8(c000, c100, f[0]), lerp8(c010, c110, f[0]));
+        let (c01, c11) = (lerp8(c001, c101, f[0]), lerp8(c011, c111, f[0]));
+        let (c0, c1) = (lerp8(c00, c10, f[1]), lerp8(c01, c11, f[1]));
+        let value = lerp8(c0, c1, f[2]);
+        Lerps8 {
+            c00,
+            c10,
+            c01,
+            c11,
+            c0,
+            c1,
+            value,
+        }
+    }
+}
+
+/// `Cell::gradient`, lane-wise, from the corners and the lerps of [`trilinear8`].
+///
+/// # Safety
+/// AVX is available.
+#[inline(always)]
+pub(crate) unsafe fn gradient8(c: &[__m256; 8], l: &Lerps8, f: &[__m256; 3]) -> [__m256; 3] {
+    let [c000, c100, c010, c110, c001, c101, c011, c111] = *c;
+    // SAFETY: the caller's.
+    unsafe {
+        let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
+        let (d01, d11) = (_mm256_sub_ps(c101, c001), _mm256_sub_ps(c111, c011));
+        let (e0, e1) = (_mm256_sub_ps(l.c10, l.c00), _mm256_sub_ps(l.c11, l.c01));
+        let (x0, x1) = (lerp8(d00, d10, f[1]), lerp8(d01, d11, f[1]));
+        [
+            lerp8(x0, x1, f[2]),
+            lerp8(e0, e1, f[2]),
+            _mm256_sub_ps(l.c1, l.c0),
+        ]
+    }
+}
+
+/// The classification's bins of `value`, as `ClassifierView::sample`: `maxps` returns its
+/// second operand (0) for NaN.
+///
+/// # Safety
+/// AVX is available.
+#[inline(always)]
+pub(crate) unsafe fn bins8(value: __m256, lo: __m256, scale: __m256, bin_max: __m256) -> __m256i {
+    // SAFETY: the caller's.
+    unsafe {
+        let x = _mm256_min_ps(
+            _mm256_max_ps(
+                _mm256_mul_ps(_mm256_sub_ps(value, lo), scale),
+                _mm256_setzero_ps(),
+            ),
+            bin_max,
+        );
+        _mm256_cvttps_epi32(x)
+    }
+}
+
 /// Whether [`march`] can take `tri`: 32-bit lane indices, and the unit x step the type's
 /// gather needs.
 pub(crate) fn fits<T: Gather8, const COPY: bool>(tri: &TrilinearSampler<'_, T, COPY>) -> bool {
@@ -394,24 +484,13 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool>(
         }
         // SAFETY: every lane's position is clamped into the data, so its cell's corners are
         // inside `v`, and `limit` keeps the overread inside too.
-        let [c000, c100, c010, c110, c001, c101, c011, c111] =
-            unsafe { T::corners8(v, base, tri.step) };
-        let lerp = |a: __m256, b: __m256, w: __m256| {
-            _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w))
+        let c = unsafe { T::corners8(v, base, tri.step) };
+        // SAFETY: AVX2 (this function's target features).
+        let (l, b) = unsafe {
+            let l = trilinear8(&c, &f);
+            let b = bins8(l.value, lo, scale, bin_max);
+            (l, b)
         };
-        let c00 = lerp(c000, c100, f[0]);
-        let c10 = lerp(c010, c110, f[0]);
-        let c01 = lerp(c001, c101, f[0]);
-        let c11 = lerp(c011, c111, f[0]);
-        let c0 = lerp(c00, c10, f[1]);
-        let c1 = lerp(c01, c11, f[1]);
-        let value = lerp(c0, c1, f[2]);
-        // As `ClassifierView::sample`: `maxps` returns its second operand (0) for NaN.
-        let x = _mm256_min_ps(
-            _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(value, lo), scale), zero),
-            bin_max,
-        );
-        let b = _mm256_cvttps_epi32(x);
         // SAFETY: `bins` holds eight i32.
         unsafe { _mm256_storeu_si256(bins.as_mut_ptr().cast(), b) };
         let live = &bins[..count as usize];
@@ -426,16 +505,8 @@ pub(crate) unsafe fn march<T: Gather8, const COPY: bool, const SHADE: bool>(
             continue;
         }
         if SHADE {
-            // `Cell::gradient`, lane-wise.
-            let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
-            let (d01, d11) = (_mm256_sub_ps(c101, c001), _mm256_sub_ps(c111, c011));
-            let (e0, e1) = (_mm256_sub_ps(c10, c00), _mm256_sub_ps(c11, c01));
-            let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
-            let g = [
-                lerp(x0, x1, f[2]),
-                lerp(e0, e1, f[2]),
-                _mm256_sub_ps(c1, c0),
-            ];
+            // SAFETY: AVX2 (this function's target features).
+            let g = unsafe { gradient8(&c, &l, &f) };
             // SAFETY: `light` holds eight f32.
             unsafe {
                 std::arch::x86_64::_mm256_storeu_ps(light.as_mut_ptr(), lambert8(g, spacing, dir));

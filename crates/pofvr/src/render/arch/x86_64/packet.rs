@@ -35,7 +35,7 @@ use std::arch::x86_64::{
 };
 
 use super::super::MarchParams;
-use super::avx2::{lambert8, Gather8};
+use super::avx2::{bins8, gradient8, lambert8, trilinear8, Gather8};
 use super::prefetch;
 use crate::render::lattice::IndexRay;
 use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
@@ -303,23 +303,12 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     T::corners8(v, base, tri.step)
                 }
             };
-            let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
-            let lerp = |a: __m256, b: __m256, w: __m256| {
-                _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(b, a), w))
+            // SAFETY: AVX2 (this function's target features).
+            let (lerps, bin) = unsafe {
+                let l = trilinear8(&c, &f);
+                let bin = bins8(l.value, lo, scale, bin_max);
+                (l, bin)
             };
-            let c00 = lerp(c000, c100, f[0]);
-            let c10 = lerp(c010, c110, f[0]);
-            let c01 = lerp(c001, c101, f[0]);
-            let c11 = lerp(c011, c111, f[0]);
-            let c0 = lerp(c00, c10, f[1]);
-            let c1 = lerp(c01, c11, f[1]);
-            let value = lerp(c0, c1, f[2]);
-            // As `ClassifierView::sample`: `maxps` returns its second operand (0) for NaN.
-            let x = _mm256_min_ps(
-                _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(value, lo), scale), zero),
-                bin_max,
-            );
-            let bin = _mm256_cvttps_epi32(x);
             // SAFETY: bins are in [0, TF_BINS), and the table holds TF_BINS entries.
             // Gathers fetch the opacity first, and the colour only for a step in which
             // some lane's sample is not transparent (the loads lane by lane come as whole
@@ -341,16 +330,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 let mut s = rgb
                     .unwrap_or_else(|| unsafe { std::array::from_fn(|c| channel8(rgba, bin, c)) });
                 if SHADE {
-                    // `Cell::gradient`, lane-wise.
-                    let (d00, d10) = (_mm256_sub_ps(c100, c000), _mm256_sub_ps(c110, c010));
-                    let (d01, d11) = (_mm256_sub_ps(c101, c001), _mm256_sub_ps(c111, c011));
-                    let (e0, e1) = (_mm256_sub_ps(c10, c00), _mm256_sub_ps(c11, c01));
-                    let (x0, x1) = (lerp(d00, d10, f[1]), lerp(d01, d11, f[1]));
-                    let g = [
-                        lerp(x0, x1, f[2]),
-                        lerp(e0, e1, f[2]),
-                        _mm256_sub_ps(c1, c0),
-                    ];
+                    // SAFETY: AVX2 (this function's target features).
+                    let g = unsafe { gradient8(&c, &lerps, &f) };
                     let l = lambert8(g, spacing, dir);
                     s = s.map(|s| _mm256_mul_ps(s, l));
                 }
@@ -367,6 +348,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         // occupied one samples, in the same iteration; each lane's samples are those of
         // the lockstep loop below, in the same order, so the pixels are the same.
         let mut kv = blend_i(k1v, k0v, has);
+        let has_bits = bits(has);
         // The lanes open as of an earlier step choose the lanes that move, leap and load;
         // `open`, this step's, those that composite and count (as in `packet16`).
         let mut lag = 0xFFu32;
@@ -377,7 +359,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             )));
             // Lanes short of their last sample that were open a step ago.
             let go =
-                bits(_mm256_cmpgt_epi32(k1v, kv)) & bits(has) & std::mem::replace(&mut lag, open);
+                bits(_mm256_cmpgt_epi32(k1v, kv)) & has_bits & std::mem::replace(&mut lag, open);
             let live = go & open;
             if live == 0 {
                 break;
