@@ -572,8 +572,13 @@
     tfApi.ready = true;
   }
 
-  window.addEventListener('pofvr:ready', () => {
+  // Both scripts are deferred, but the browser may answer viewer.js's /api/info (and so fire
+  // `pofvr:ready`) while this file is still downloading: start at once if that happened.
+  function begin() {
+    if (window.pofvr.tf) return;
     window.pofvr.tf = tfApi;
     start();
-  });
+  }
+  if (window.pofvr && window.pofvr.ready) begin();
+  else window.addEventListener('pofvr:ready', begin, { once: true });
 })();

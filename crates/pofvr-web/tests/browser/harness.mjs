@@ -85,9 +85,11 @@ export function setup() {
   });
 }
 
-/** Opens the viewer and waits for its first full-resolution frame. */
-export async function openViewer(url) {
+/** Opens the viewer and waits for its first full-resolution frame; `prepare(page)`, when
+ * given, runs before the page loads (to route its requests). */
+export async function openViewer(url, prepare) {
   const page = await context.newPage();
+  if (prepare) await prepare(page);
   const problems = [];
   page.on('pageerror', (e) => problems.push(String(e)));
   page.on('console', (m) => {

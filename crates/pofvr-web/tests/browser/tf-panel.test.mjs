@@ -30,8 +30,8 @@ async function settledFrame(page, after) {
   return frameNow(page);
 }
 
-async function openPanel(url) {
-  const opened = await openViewer(url);
+async function openPanel(url, prepare) {
+  const opened = await openViewer(url, prepare);
   await opened.page.waitForFunction(() => window.pofvr.tf && window.pofvr.tf.ready, null, { timeout: FRAME_TIMEOUT });
   return opened;
 }
@@ -172,6 +172,29 @@ test('the panel edits the family; the saved family renders the same with pofvr r
     assert.deepEqual(problems.filter((p) => !refused.includes(p)), [], 'no other errors in the page');
   } finally {
     rmSync(dir, { recursive: true, force: true });
+    await page.close();
+  }
+});
+
+test('the panel starts when the viewer is ready before tf-editor.js has arrived', async () => {
+  // Both scripts are deferred; a slow tf-editor.js download lets viewer.js's /api/info answer
+  // and `pofvr:ready` fire first (a loaded CI machine did this). Hold the file back until then.
+  const url = await startServer(VOLUME);
+  let held = false;
+  const { page, problems } = await openPanel(url, (p) => p.route('**/tf-editor.js', async (route) => {
+    await p.waitForFunction(() => window.pofvr && window.pofvr.ready, null, { timeout: FRAME_TIMEOUT });
+    held = true;
+    await route.continue();
+  }));
+  try {
+    assert.ok(held, 'tf-editor.js was held back until the viewer was ready');
+    assert.equal(await page.locator('#tf-basis option').count(), 2, 'the panel shows the bases');
+    const seq = (await frameNow(page)).seq;
+    await page.evaluate(() => window.pofvr.view.requestFrame(false));
+    const next = await settledFrame(page, seq);
+    assert.equal(next.stats.family_version, await page.evaluate(() => window.pofvr.tf.version));
+    assert.deepEqual(problems, [], 'no errors in the page');
+  } finally {
     await page.close();
   }
 });
