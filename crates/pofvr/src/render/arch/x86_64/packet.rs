@@ -257,15 +257,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         let mut ci = [0u32; LANES];
         // SAFETY: `ci` holds eight u32.
         unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
-        // Scalar loads: the lanes' entries are wanted as bits, and eight byte loads
-        // cost less than a gather on cores whose gathers are slow.
-        *occ = 0;
-        for (j, (&c, l)) in ci.iter().zip(lv.iter_mut()).enumerate() {
-            // SAFETY: every lane's cell is inside the grid (positions are clamped).
-            let e = unsafe { *tab.leap.get_unchecked(c as usize) };
-            *l = i32::from(e);
-            *occ |= u32::from(e & OCCUPIED != 0) << j;
-        }
+        // SAFETY: every lane's cell is inside the grid (positions are clamped).
+        *occ = unsafe { leap_entries(tab.leap, &ci, lv) };
     };
     // Lanes outside `load` (those in empty cells) take the corners' base of a lane in it
     // instead of their own: their samples classify to zero opacity whatever they read (the
@@ -517,6 +510,29 @@ pub(crate) unsafe fn leaps8(leap: &[u8], idx: __m256i, occupied: u8) -> (__m256i
     let e = _mm256_and_si256(w, _mm256_set1_epi32(0xFF));
     let m = _mm256_set1_epi32(i32::from(occupied));
     (e, bits(_mm256_cmpeq_epi32(_mm256_and_si256(e, m), m)))
+}
+
+/// The occupancy's entries of the cells `ci`, lane by lane, into `lv`, and which are
+/// occupied, as bits: scalar loads, for both packet loops where they load lane by lane
+/// (the entries are wanted as bits, and `N` byte loads cost less than a gather on cores
+/// whose gathers are slow).
+///
+/// # Safety
+/// Every cell of `ci` is an entry of `leap`.
+#[inline(always)]
+pub(crate) unsafe fn leap_entries<const N: usize>(
+    leap: &[u8],
+    ci: &[u32; N],
+    lv: &mut [i32; N],
+) -> u32 {
+    let mut occ = 0;
+    for (j, (&c, l)) in ci.iter().zip(lv.iter_mut()).enumerate() {
+        // SAFETY: the caller's.
+        let e = unsafe { *leap.get_unchecked(c as usize) };
+        *l = i32::from(e);
+        occ |= u32::from(e & OCCUPIED != 0) << j;
+    }
+    occ
 }
 
 /// `m ? b : a`, lane-wise on integers.

@@ -33,7 +33,7 @@ use std::arch::x86_64::{
 use super::super::generic::{AMBIENT, DIFFUSE};
 use super::super::MarchParams;
 use super::gather16::{self, Gather16};
-use super::packet::{corners_exact, rgba8, Packet, PacketStats, PacketTables};
+use super::packet::{corners_exact, leap_entries, rgba8, Packet, PacketStats, PacketTables};
 use super::prefetch;
 use crate::render::occupancy::{CELL_SHIFT, OCCUPIED};
 use crate::render::sampler::TrilinearSampler;
@@ -325,13 +325,9 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
                 let mut ci = [0u32; LANES];
                 // SAFETY: `ci` holds sixteen u32.
                 unsafe { _mm512_storeu_epi32(ci.as_mut_ptr().cast(), idx) };
-                *occ_bits = 0;
-                for (j, (&c, l)) in ci.iter().zip(lv.iter_mut()).enumerate() {
-                    // SAFETY: every lane's cell is inside the grid (positions are clamped).
-                    let e = unsafe { *tab.leap.get_unchecked(c as usize) };
-                    *l = i32::from(e);
-                    *occ_bits |= u16::from(e & OCCUPIED != 0) << j;
-                }
+                // SAFETY: every lane's cell is inside the grid (positions are clamped);
+                // sixteen lanes' bits fit a u16.
+                *occ_bits = unsafe { leap_entries(tab.leap, &ci, lv) } as u16;
             }
         };
     // Lanes outside `need` (those in occupied cells) take the corners' base of a lane in
