@@ -575,7 +575,6 @@
   // Both scripts are deferred, but the browser may answer viewer.js's /api/info (and so fire
   // `pofvr:ready`) while this file is still downloading: start at once if that happened.
   function begin() {
-    if (window.pofvr.tf) return;
     window.pofvr.tf = tfApi;
     start();
   }
