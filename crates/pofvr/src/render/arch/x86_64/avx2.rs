@@ -37,12 +37,14 @@ use crate::render::sampler::TrilinearSampler;
 use crate::render::transfer_function::BIN_MAX;
 use crate::volume::Voxel;
 
-/// Whether this CPU runs the AVX2 loop (`POFVR_SIMD=sse2` turns it off, for comparisons).
-/// Asked once per ray caster, not per ray: the feature test is cached by the standard
-/// library, and the environment is read once per caster.
+/// Whether this CPU runs the AVX2 loops (`POFVR_SIMD=sse2` turns them off, for
+/// comparisons). Asked once per ray caster, not per ray: the feature test is cached by the
+/// standard library, and the environment is read once per caster. The packet loops count
+/// lanes with POPCNT, which every CPU with AVX2 has; it is tested all the same.
 pub(crate) fn available() -> bool {
     std::env::var("POFVR_SIMD").map_or(true, |s| !s.eq_ignore_ascii_case("sse2"))
         && std::arch::is_x86_feature_detected!("avx2")
+        && std::arch::is_x86_feature_detected!("popcnt")
 }
 
 /// Voxel types whose eight cell corners the AVX2 loop gathers for eight samples at once.

@@ -105,9 +105,12 @@ fn hmin(v: __m256i) -> i32 {
 /// `tab`, shaded when `SHADE` (then `p.shade` is set); see the [module](self).
 ///
 /// # Safety
-/// AVX2 is available and [`super::avx2::fits`] holds; `tab` was built for this volume
-/// and classification, with the padding it documents.
-#[target_feature(enable = "avx2")]
+/// AVX2 and POPCNT are available ([`super::avx2::available`]) and [`super::avx2::fits`]
+/// holds; `tab` was built for this volume and classification, with the padding it
+/// documents.
+// POPCNT: the counts of lanes sampled and skipped, at every step (without it they compile
+// to a dozen instructions each).
+#[target_feature(enable = "avx2,popcnt")]
 pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
@@ -203,7 +206,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     // The occupancy cells of the last sample looked up (none yet), their entries, and
     // which of them are occupied, as bits.
     let mut last_idx = _mm256_set1_epi32(-1);
-    let mut lv = [0i32; LANES];
+    let mut lv = _mm256_setzero_si256();
     let mut occ_bits = 0u32;
     let lane_bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
     let mask_of = |m: u32| {
@@ -239,26 +242,20 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     // The entries of the lanes' cells at `idx`, and which are occupied, as bits: those of
     // the previous lookup serve while no lane changed cell (most samples, as a cell is
     // several samples long).
-    let lookup = |idx: __m256i, last_idx: &mut __m256i, lv: &mut [i32; LANES], occ: &mut u32| {
+    let lookup = |idx: __m256i, last_idx: &mut __m256i, lv: &mut __m256i, occ: &mut u32| {
         if bits(_mm256_cmpeq_epi32(idx, *last_idx)) == 0xFF {
             return;
         }
         *last_idx = idx;
-        if gather {
-            // SAFETY: every lane's cell is inside the grid (positions are clamped), and
-            // the table is padded for a word at its last entry; `lv` holds eight i32.
-            unsafe {
-                let (e, m) = leaps8(tab.leap, idx, OCCUPIED);
-                _mm256_storeu_si256(lv.as_mut_ptr().cast(), e);
-                *occ = m;
+        // SAFETY: every lane's cell is inside the grid (positions are clamped), and the
+        // table is padded for a word at its last entry.
+        (*lv, *occ) = unsafe {
+            if gather {
+                leaps8(tab.leap, idx, OCCUPIED)
+            } else {
+                leap_bytes8(tab.leap, idx)
             }
-            return;
-        }
-        let mut ci = [0u32; LANES];
-        // SAFETY: `ci` holds eight u32.
-        unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
-        // SAFETY: every lane's cell is inside the grid (positions are clamped).
-        *occ = unsafe { leap_entries(tab.leap, &ci, lv) };
+        };
     };
     // Lanes outside `load` (those in empty cells) take the corners' base of a lane in it
     // instead of their own: their samples classify to zero opacity whatever they read (the
@@ -366,9 +363,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             let mut next = _mm256_add_epi32(kv, one);
             st.steps += 1;
             if empty != 0 {
-                // SAFETY: `lv` holds eight i32.
-                let leap = unsafe { _mm256_loadu_si256(lv.as_ptr().cast()) };
-                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = leap_end(kv, &cell, lv, &leap_ray, &cells_at);
                 let kb = _mm256_max_epi32(kb, next);
                 let mut gone = [0i32; LANES];
                 // SAFETY: `gone` holds eight i32.
@@ -418,10 +413,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             let (base, f, cell, idx) = locate(t);
             lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
             if occ_bits & live_bits == 0 {
-                // SAFETY: `lv` holds eight i32.
-                let leap = unsafe { _mm256_loadu_si256(lv.as_ptr().cast()) };
                 // Every live lane is in an empty cell: the packet leaps.
-                let kb = leap_end(kv, &cell, leap, &leap_ray, &cells_at);
+                let kb = leap_end(kv, &cell, lv, &leap_ray, &cells_at);
                 let kb = blend_i(big, kb, live);
                 let kb = _mm256_min_epi32(kb, blend_i(big, k0v, pending));
                 let next = hmin(kb).max(k + 1);
@@ -510,6 +503,38 @@ pub(crate) unsafe fn leaps8(leap: &[u8], idx: __m256i, occupied: u8) -> (__m256i
     let e = _mm256_and_si256(w, _mm256_set1_epi32(0xFF));
     let m = _mm256_set1_epi32(i32::from(occupied));
     (e, bits(_mm256_cmpeq_epi32(_mm256_and_si256(e, m), m)))
+}
+
+/// The occupancy entries of cells `idx` by eight byte loads, widened to words, and which
+/// of them are occupied, as bits: for cores whose gathers are slow. The bytes go into one
+/// vector as they load, so that the occupied flags come out by one byte mask.
+///
+/// # Safety
+/// AVX2 is available; every lane's cell is an entry of `leap`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn leap_bytes8(leap: &[u8], idx: __m256i) -> (__m256i, u32) {
+    use std::arch::x86_64::{_mm256_cvtepu8_epi32, _mm_insert_epi8, _mm_movemask_epi8};
+    // The byte mask reads each entry's top bit.
+    const _: () = assert!(OCCUPIED == 0x80);
+    let mut ci = [0u32; LANES];
+    // SAFETY: `ci` holds eight u32.
+    unsafe { _mm256_storeu_si256(ci.as_mut_ptr().cast(), idx) };
+    // SAFETY: the caller's.
+    let e = |j: usize| i32::from(unsafe { *leap.get_unchecked(ci[j] as usize) });
+    let mut b = std::arch::x86_64::_mm_setzero_si128();
+    b = _mm_insert_epi8::<0>(b, e(0));
+    b = _mm_insert_epi8::<1>(b, e(1));
+    b = _mm_insert_epi8::<2>(b, e(2));
+    b = _mm_insert_epi8::<3>(b, e(3));
+    b = _mm_insert_epi8::<4>(b, e(4));
+    b = _mm_insert_epi8::<5>(b, e(5));
+    b = _mm_insert_epi8::<6>(b, e(6));
+    b = _mm_insert_epi8::<7>(b, e(7));
+    (
+        _mm256_cvtepu8_epi32(b),
+        (_mm_movemask_epi8(b) & 0xFF) as u32,
+    )
 }
 
 /// The occupancy's entries of the cells `ci`, lane by lane, into `lv`, and which are

@@ -42,7 +42,7 @@ use crate::render::skip::LEAP_MIN;
 /// Rays per packet.
 pub(crate) const LANES: usize = 16;
 
-/// Whether this CPU runs the AVX-512 packet loop: AVX-512 F, BW, DQ and VL, and AVX2
+/// Whether this CPU runs the AVX-512 packet loop: AVX-512 F, BW, DQ and VL, AVX2 and POPCNT
 /// (`POFVR_SIMD=avx2` or `sse2` turns it off, for comparisons).
 pub(crate) fn available() -> bool {
     std::env::var("POFVR_SIMD").map_or(true, |s| {
@@ -52,6 +52,7 @@ pub(crate) fn available() -> bool {
         && std::arch::is_x86_feature_detected!("avx512bw")
         && std::arch::is_x86_feature_detected!("avx512dq")
         && std::arch::is_x86_feature_detected!("avx512vl")
+        && std::arch::is_x86_feature_detected!("popcnt")
 }
 
 /// Sixteen floats as a vector.
@@ -179,9 +180,10 @@ macro_rules! leap_end {
 /// [`super::packet::march8`], whose steps this follows one for one.
 ///
 /// # Safety
-/// AVX-512 F/BW/DQ/VL and AVX2 are available and [`super::avx2::fits`] holds; `tab` was
-/// built for this volume and classification, with the padding it documents.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl")]
+/// AVX-512 F/BW/DQ/VL, AVX2 and POPCNT are available ([`available`]) and
+/// [`super::avx2::fits`] holds; `tab` was built for this volume and classification, with
+/// the padding it documents.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512dq,avx512vl,popcnt")]
 pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
