@@ -22,11 +22,11 @@
 use std::arch::x86_64::{
     __m128, __m256, __m256i, _mm256_add_epi32, _mm256_add_ps, _mm256_and_si256,
     _mm256_castsi256_ps, _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_cvttps_epi32,
-    _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps,
-    _mm256_mul_ps, _mm256_mullo_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32,
-    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_srai_epi32,
-    _mm256_srli_epi32, _mm256_storeu_si256, _mm256_sub_ps, _mm_add_ps, _mm_loadu_ps, _mm_mul_ps,
-    _mm_set1_ps, _mm_storeu_ps,
+    _mm256_i32gather_ps, _mm256_mask_i32gather_epi32, _mm256_mask_i32gather_ps, _mm256_max_ps,
+    _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps, _mm256_mullo_epi32, _mm256_set1_epi32,
+    _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32,
+    _mm256_srai_epi32, _mm256_srli_epi32, _mm256_storeu_si256, _mm256_sub_ps, _mm_add_ps,
+    _mm_loadu_ps, _mm_mul_ps, _mm_set1_ps, _mm_storeu_ps,
 };
 
 use super::super::generic::{AMBIENT, DIFFUSE};
@@ -65,15 +65,19 @@ pub(crate) trait Gather8: Voxel {
 
     /// [`Gather8::corners8`] by `vpgatherdd`, one instruction per word for the eight lanes
     /// (the packet loop's form where gathers measured faster, `super::gather`): the same
-    /// words, so the same corners. f32 corners are gathered either way.
+    /// words, so the same corners, for the lanes whose sign bit is set in `mask`; the
+    /// others read nothing and their corners are 0. In lockstep the packet loop masks
+    /// only the lanes outside their ray's samples, so that no read waits on the occupancy
+    /// lookup (`packet::march8`'s `sample!`).
     ///
     /// # Safety
-    /// As [`Gather8::corners8`].
-    #[inline(always)]
-    unsafe fn corners8_gathered(v: &[Self], base: __m256i, step: [usize; 3]) -> [__m256; 8] {
-        // SAFETY: the caller's.
-        unsafe { Self::corners8(v, base, step) }
-    }
+    /// As [`Gather8::corners8`], for the lanes in `mask`.
+    unsafe fn corners8_gathered(
+        v: &[Self],
+        base: __m256i,
+        step: [usize; 3],
+        mask: __m256i,
+    ) -> [__m256; 8];
 }
 
 /// The four 32-bit words at elements `base`, `base + sy`, `base + sz`, `base + sy + sz`,
@@ -106,22 +110,29 @@ unsafe fn words<T>(v: &[T], base: __m256i, sy: usize, sz: usize) -> [__m256i; 4]
     }
 }
 
-/// The words of [`words`] by four `vpgatherdd`, for elements `S` bytes wide.
+/// The words of [`words`] by four `vpgatherdd`, for elements `S` bytes wide, of the lanes
+/// whose sign bit is set in `mask` (0 in the others, which read nothing).
 ///
 /// # Safety
-/// AVX2 is available; every word lies inside `v`'s allocation; offsets are below 2^31
-/// ([`fits`]).
+/// AVX2 is available; every word of a lane in `mask` lies inside `v`'s allocation;
+/// offsets are below 2^31 ([`fits`]).
 #[inline(always)]
 unsafe fn words_gathered<T, const S: i32>(
     v: &[T],
     base: __m256i,
     sy: usize,
     sz: usize,
+    mask: __m256i,
 ) -> [__m256i; 4] {
     let p = v.as_ptr().cast::<i32>();
     // SAFETY: the caller's.
     let at = |off: usize| unsafe {
-        _mm256_i32gather_epi32::<S>(p, _mm256_add_epi32(base, _mm256_set1_epi32(off as i32)))
+        _mm256_mask_i32gather_epi32::<S>(
+            _mm256_setzero_si256(),
+            p,
+            _mm256_add_epi32(base, _mm256_set1_epi32(off as i32)),
+            mask,
+        )
     };
     [at(0), at(sy), at(sz), at(sy + sz)]
 }
@@ -205,9 +216,14 @@ impl Gather8 for u8 {
     }
 
     #[inline(always)]
-    unsafe fn corners8_gathered(v: &[u8], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
-        // SAFETY: as `corners8`.
-        unsafe { u8_pairs(words_gathered::<u8, 1>(v, base, sy, sz)) }
+    unsafe fn corners8_gathered(
+        v: &[u8],
+        base: __m256i,
+        [_, sy, sz]: [usize; 3],
+        mask: __m256i,
+    ) -> [__m256; 8] {
+        // SAFETY: as `corners8`, for the lanes in `mask`.
+        unsafe { u8_pairs(words_gathered::<u8, 1>(v, base, sy, sz, mask)) }
     }
 }
 
@@ -222,9 +238,14 @@ impl Gather8 for u16 {
     }
 
     #[inline(always)]
-    unsafe fn corners8_gathered(v: &[u16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
-        // SAFETY: as `corners8`.
-        unsafe { u16_pairs(words_gathered::<u16, 2>(v, base, sy, sz)) }
+    unsafe fn corners8_gathered(
+        v: &[u16],
+        base: __m256i,
+        [_, sy, sz]: [usize; 3],
+        mask: __m256i,
+    ) -> [__m256; 8] {
+        // SAFETY: as `corners8`, for the lanes in `mask`.
+        unsafe { u16_pairs(words_gathered::<u16, 2>(v, base, sy, sz, mask)) }
     }
 }
 
@@ -239,15 +260,53 @@ impl Gather8 for i16 {
     }
 
     #[inline(always)]
-    unsafe fn corners8_gathered(v: &[i16], base: __m256i, [_, sy, sz]: [usize; 3]) -> [__m256; 8] {
-        // SAFETY: as `corners8`.
-        unsafe { i16_pairs(words_gathered::<i16, 2>(v, base, sy, sz)) }
+    unsafe fn corners8_gathered(
+        v: &[i16],
+        base: __m256i,
+        [_, sy, sz]: [usize; 3],
+        mask: __m256i,
+    ) -> [__m256; 8] {
+        // SAFETY: as `corners8`, for the lanes in `mask`.
+        unsafe { i16_pairs(words_gathered::<i16, 2>(v, base, sy, sz, mask)) }
     }
 }
 
 impl Gather8 for f32 {
     const UNIT_X: bool = false;
     const OVERREAD: usize = 0;
+
+    #[inline(always)]
+    unsafe fn corners8_gathered(
+        v: &[f32],
+        base: __m256i,
+        [sx, sy, sz]: [usize; 3],
+        mask: __m256i,
+    ) -> [__m256; 8] {
+        let p = v.as_ptr();
+        // SAFETY: every offset of a lane in `mask` is a corner of its cell (caller).
+        unsafe {
+            let mask = _mm256_castsi256_ps(mask);
+            let at = |off: usize| {
+                let off = _mm256_set1_epi32(off as i32);
+                _mm256_mask_i32gather_ps::<4>(
+                    _mm256_setzero_ps(),
+                    p,
+                    _mm256_add_epi32(base, off),
+                    mask,
+                )
+            };
+            [
+                at(0),
+                at(sx),
+                at(sy),
+                at(sy + sx),
+                at(sz),
+                at(sz + sx),
+                at(sz + sy),
+                at(sz + sy + sx),
+            ]
+        }
+    }
 
     #[inline(always)]
     unsafe fn corners8(v: &[f32], base: __m256i, [sx, sy, sz]: [usize; 3]) -> [__m256; 8] {
@@ -552,5 +611,95 @@ pub(crate) fn load(acc: &[f32; 4]) -> Acc {
     Acc {
         a: unsafe { _mm_loadu_ps(acc.as_ptr()) },
         a3: acc[3],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::arch::x86_64::_mm256_loadu_si256;
+
+    #[test]
+    fn masked_gathers_read_the_words_the_per_lane_loads_read() {
+        if !available() {
+            println!("skipped: this CPU does not run the AVX2 loops");
+            return;
+        }
+        // Each type's corners of the same cells, both ways, bit for bit, in the lanes of
+        // the mask, and 0 in the others, whose bases lie far outside the data (a masked
+        // lane reads nothing).
+        fn check<T: Gather8>(v: &[T], step: [usize; 3]) {
+            let last = (v.len() - 1 - step[0] - step[1] - step[2] - T::OVERREAD) as i32;
+            for mask in [0xFFu32, 0xA5, 0x01, 0] {
+                let b: [i32; 8] = std::array::from_fn(|j| {
+                    if mask >> j & 1 != 0 {
+                        last - (j as i32 * 37) % (last + 1)
+                    } else {
+                        i32::MAX / 2
+                    }
+                });
+                let inside = b.map(|b| b.min(last));
+                let lanes: [i32; 8] = std::array::from_fn(|j| -((mask >> j & 1) as i32));
+                // SAFETY: this CPU runs the loops; every base of a lane in the mask leaves
+                // its words inside `v`, and the per-lane loads read the clamped bases.
+                let (g, l) = unsafe { corners_both(v, &b, &inside, &lanes, step) };
+                for j in 0..8 {
+                    let want = if mask >> j & 1 != 0 {
+                        l.map(|c| c[j])
+                    } else {
+                        [0; 8]
+                    };
+                    assert_eq!(
+                        g.map(|c| c[j]),
+                        want,
+                        "{} lane {j}",
+                        std::any::type_name::<T>()
+                    );
+                }
+            }
+        }
+        let n = 6 * 5 * 4;
+        let step = [1, 6, 30];
+        check::<u8>(
+            &(0..n).map(|i| (i * 7 % 256) as u8).collect::<Vec<_>>(),
+            step,
+        );
+        check::<u16>(&(0..n).map(|i| (i * 977) as u16).collect::<Vec<_>>(), step);
+        check::<i16>(
+            &(0..n)
+                .map(|i| (i * 977) as i16 - 20_000)
+                .collect::<Vec<_>>(),
+            step,
+        );
+        check::<f32>(&(0..n).map(|i| i as f32 * -0.37).collect::<Vec<_>>(), step);
+    }
+
+    /// The corners of the cells at `b` by [`Gather8::corners8_gathered`] in the lanes of
+    /// `mask` (all bits set or none, lane by lane), and those at `inside` by
+    /// [`Gather8::corners8`], as bits.
+    #[target_feature(enable = "avx2")]
+    unsafe fn corners_both<T: Gather8>(
+        v: &[T],
+        b: &[i32; 8],
+        inside: &[i32; 8],
+        mask: &[i32; 8],
+        step: [usize; 3],
+    ) -> ([[u32; 8]; 8], [[u32; 8]; 8]) {
+        let bits = |c: [__m256; 8]| {
+            c.map(|c| {
+                let mut o = [0f32; 8];
+                // SAFETY: `o` holds eight f32.
+                unsafe { std::arch::x86_64::_mm256_storeu_ps(o.as_mut_ptr(), c) };
+                o.map(f32::to_bits)
+            })
+        };
+        // SAFETY: caller; each array holds eight i32.
+        unsafe {
+            let load = |a: &[i32; 8]| _mm256_loadu_si256(a.as_ptr().cast());
+            (
+                bits(T::corners8_gathered(v, load(b), step, load(mask))),
+                bits(T::corners8(v, load(inside), step)),
+            )
+        }
     }
 }

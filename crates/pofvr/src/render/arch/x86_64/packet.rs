@@ -257,30 +257,49 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             }
         };
     };
-    // Lanes outside `load` (those in empty cells) take the corners' base of a lane in it
-    // instead of their own: their samples classify to zero opacity whatever they read (the
-    // rule the leaps rest on), and the loads then hit lines already on their way in. They
-    // count as skipped, not as samples taken.
+    // Lanes outside `load` (those in empty cells, and those whose ray is done) take the
+    // corners' base of a lane in it instead of their own: their samples classify to zero
+    // opacity whatever they read (the rule the leaps rest on), and the loads then hit
+    // lines already on their way in. They count as skipped, not as samples taken.
     let redirect = |base: __m256i, load: u32| {
         let src = _mm256_set1_epi32(load.trailing_zeros() as i32);
         blend_i(_mm256_permutevar8x32_epi32(base, src), base, mask_of(load))
     };
-    // One sample of the lanes in `need`, from bases `redirect` gave, composited into `acc`
-    // as the reference does: the same in lockstep and lane by lane. A macro, so that each
-    // loop gets it inline (as `packet16`'s).
+    let every = _mm256_set1_epi32(-1);
+    // One sample of the lanes in `need`, read by the lanes in `load` (a superset),
+    // composited into `acc` as the reference does: the same in lockstep and lane by lane.
+    // `own` (lockstep) gives the lanes whose reads stay on their own corners: gathers
+    // read only those (masked), loads lane by lane read every lane's own. In lockstep a
+    // lane in an empty cell sits beside lanes that sample, on the lines they read, and
+    // its read need not wait for the occupancy lookup (`redirect` does): axis frames took
+    // 0.87-0.92 of the redirected time with gathers, 0.94-0.98 without (docs/results.md,
+    // stop 44). Lane by lane (`None`) a lane that leaps lands on a line no other lane
+    // reads: on a volume larger than the caches its own read costs a miss per leap (1.23 x
+    // the frame time, chest1728 30,20), so those redirect.
+    // A macro, so that each loop gets it inline (as `packet16`'s).
     macro_rules! sample {
-        ($base:expr, $f:expr, $need:expr, $acc:expr) => {{
-            let (base, f, need_bits, acc): (__m256i, [__m256; 3], u32, &mut [__m256; 4]) =
-                ($base, $f, $need, $acc);
+        ($base:expr, $f:expr, $need:expr, $load:expr, $own:expr, $acc:expr) => {{
+            let (base, f, need_bits, load_bits, own, acc): (
+                __m256i,
+                [__m256; 3],
+                u32,
+                u32,
+                Option<__m256i>,
+                &mut [__m256; 4],
+            ) = ($base, $f, $need, $load, $own, $acc);
             // The lines these lanes will read `AHEAD_VOXELS` on.
             if let Some((off, across)) = ahead {
-                let b = _mm256_add_epi32(base, off);
+                let b = _mm256_add_epi32(redirect(base, load_bits), off);
                 let b = _mm256_min_epi32(_mm256_max_epi32(b, _mm256_setzero_si256()), limit);
                 let mut at = [0i32; LANES];
                 // SAFETY: `at` holds eight i32.
                 unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), b) };
                 prefetch::lines(v, &at, across);
             }
+            let (base, reads) = match own {
+                Some(reads) => (base, reads),
+                None => (redirect(base, load_bits), every),
+            };
             // SAFETY: every lane's position is clamped into the data, so its cell's
             // corners are inside `v`; past `limit` the gather of a wider word would read
             // past the end.
@@ -288,7 +307,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 if bits(_mm256_cmpgt_epi32(base, limit)) != 0 {
                     corners_exact(v, base, tri.step)
                 } else if gather {
-                    T::corners8_gathered(v, base, tri.step)
+                    T::corners8_gathered(v, base, tri.step, reads)
                 } else {
                     T::corners8(v, base, tri.step)
                 }
@@ -376,8 +395,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 next = blend_i(next, kb, mask_of(empty));
             }
             if need != 0 {
-                let base = redirect(base, load);
-                sample!(base, f, need, &mut acc);
+                sample!(base, f, need, load, None, &mut acc);
                 st.samples += u64::from(need.count_ones());
             }
             kv = blend_i(kv, next, mask_of(go));
@@ -426,8 +444,14 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             let load_bits = occ_bits
                 & bits(_mm256_and_si256(started, before_end))
                 & std::mem::replace(&mut lag, bits(open));
-            let base = redirect(base, load_bits);
-            sample!(base, f, need_bits, &mut acc);
+            sample!(
+                base,
+                f,
+                need_bits,
+                load_bits,
+                Some(_mm256_and_si256(started, before_end)),
+                &mut acc
+            );
             st.samples += u64::from(need_bits.count_ones());
             st.skipped += u64::from((live_bits & !occ_bits).count_ones());
             k += 1;
