@@ -268,14 +268,17 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     let every = _mm256_set1_epi32(-1);
     // One sample of the lanes in `need`, read by the lanes in `load` (a superset),
     // composited into `acc` as the reference does: the same in lockstep and lane by lane.
-    // `own` (lockstep) gives the lanes whose reads stay on their own corners: gathers
-    // read only those (masked), loads lane by lane read every lane's own. In lockstep a
-    // lane in an empty cell sits beside lanes that sample, on the lines they read, and
-    // its read need not wait for the occupancy lookup (`redirect` does): axis frames took
-    // 0.87-0.92 of the redirected time with gathers, 0.94-0.98 without (docs/results.md,
-    // stop 44). Lane by lane (`None`) a lane that leaps lands on a line no other lane
-    // reads: on a volume larger than the caches its own read costs a miss per leap (1.23 x
-    // the frame time, chest1728 30,20), so those redirect.
+    // `own` = `Some((reads, late))`: the lanes read their own corners, not redirected
+    // ones, so that the reads need not wait for the occupancy lookup (`redirect` does):
+    // gathers read the lanes in `reads` (masked) and, in a second gather, the lanes in
+    // `late` (those of `load` outside `reads`); loads lane by lane read every lane's own.
+    // In lockstep a lane in an empty cell sits beside lanes that sample, on the lines they
+    // read: `reads` is every lane within its ray's samples, `late` none. Lane by lane, a
+    // lane that has just leapt lands on a line no other lane reads, a miss on a volume
+    // larger than the caches if the cell is empty (own reads of every lane: 1.23 x the
+    // frame time on chest1728 30,20), so `reads` leaves out the lanes that leapt and
+    // `late` takes those that landed in an occupied cell; loads lane by lane redirect
+    // (`None`) there. Frames 0.87-0.97 of redirected ones (docs/results.md, stop 44).
     // A macro, so that each loop gets it inline (as `packet16`'s).
     macro_rules! sample {
         ($base:expr, $f:expr, $need:expr, $load:expr, $own:expr, $acc:expr) => {{
@@ -284,7 +287,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 [__m256; 3],
                 u32,
                 u32,
-                Option<__m256i>,
+                Option<(__m256i, u32)>,
                 &mut [__m256; 4],
             ) = ($base, $f, $need, $load, $own, $acc);
             // The lines these lanes will read `AHEAD_VOXELS` on.
@@ -296,9 +299,9 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), b) };
                 prefetch::lines(v, &at, across);
             }
-            let (base, reads) = match own {
-                Some(reads) => (base, reads),
-                None => (redirect(base, load_bits), every),
+            let (base, reads, late) = match own {
+                Some((reads, late)) => (base, reads, late),
+                None => (redirect(base, load_bits), every, 0),
             };
             // SAFETY: every lane's position is clamped into the data, so its cell's
             // corners are inside `v`; past `limit` the gather of a wider word would read
@@ -307,7 +310,16 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 if bits(_mm256_cmpgt_epi32(base, limit)) != 0 {
                     corners_exact(v, base, tri.step)
                 } else if gather {
-                    T::corners8_gathered(v, base, tri.step, reads)
+                    let mut c = T::corners8_gathered(v, base, tri.step, reads);
+                    if late != 0 {
+                        let m = mask_of(late);
+                        let c2 = T::corners8_gathered(v, base, tri.step, m);
+                        let mf = _mm256_castsi256_ps(m);
+                        for i in 0..8 {
+                            c[i] = _mm256_blendv_ps(c[i], c2[i], mf);
+                        }
+                    }
+                    c
                 } else {
                     T::corners8(v, base, tri.step)
                 }
@@ -361,6 +373,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         // The lanes open as of an earlier step choose the lanes that move, leap and load;
         // `open`, this step's, those that composite and count (as in `packet16`).
         let mut lag = 0xFFu32;
+        // The lanes that leapt a step ago: landed, on lines not read yet (`sample!`).
+        let mut leapt = 0u32;
         loop {
             // As the reference's `acc[3] >= ert` stop, negated.
             let open = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
@@ -395,10 +409,22 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 next = blend_i(next, kb, mask_of(empty));
             }
             if need != 0 {
-                sample!(base, f, need, load, None, &mut acc);
+                let own = if gather {
+                    Some((
+                        _mm256_andnot_si256(
+                            mask_of(leapt),
+                            _mm256_and_si256(has, _mm256_cmpgt_epi32(k1v, kv)),
+                        ),
+                        load & leapt,
+                    ))
+                } else {
+                    None
+                };
+                sample!(base, f, need, load, own, &mut acc);
                 st.samples += u64::from(need.count_ones());
             }
             kv = blend_i(kv, next, mask_of(go));
+            leapt = empty;
         }
     } else {
         // Rays along an axis: the packet in lockstep, at one sample index `k`.
@@ -449,7 +475,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 f,
                 need_bits,
                 load_bits,
-                Some(_mm256_and_si256(started, before_end)),
+                Some((_mm256_and_si256(started, before_end), 0)),
                 &mut acc
             );
             st.samples += u64::from(need_bits.count_ones());
