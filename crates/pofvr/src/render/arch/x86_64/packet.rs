@@ -433,6 +433,75 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         // this step's loads need not wait for the previous step's composite (a terminated
         // lane loads once more, for nothing).
         let mut lag = 0xFFu32;
+        // Rays along an axis keep their other two coordinates: where every lane's
+        // position on those axes is the same at its first and last sample, it is the
+        // same at every sample between (positions are rounded products and sums and a
+        // clamp, monotone in `k`), so those axes' share of the base, fractions and cells
+        // is worked out once and each step locates along the one axis left. Lanes off
+        // their samples take the fixed coordinates too: inside the volume, read (lane
+        // by lane) or masked (gathers), never composited.
+        let fixed = {
+            let t0 = _mm256_mul_ps(_mm256_cvtepi32_ps(k0v), stepv);
+            let t1 = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_sub_epi32(k1v, one)), stepv);
+            let clamped = |t: __m256, a: usize| {
+                let p = _mm256_add_ps(o[a], _mm256_mul_ps(t, d[a]));
+                _mm256_min_ps(_mm256_max_ps(p, zero), maxv[a])
+            };
+            let has_bits = bits(has);
+            let same: [bool; 3] = [0, 1, 2].map(|a| {
+                let eq = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_EQ_OQ>(
+                    clamped(t0, a),
+                    clamped(t1, a),
+                ));
+                bits(eq) & has_bits == has_bits
+            });
+            match same {
+                [false, true, true] => Some(0),
+                [true, false, true] => Some(1),
+                [true, true, false] => Some(2),
+                _ => None,
+            }
+            .map(|m| {
+                // The fixed axes at the first sample, as `locate` works them out.
+                let (base, f, cell, idx) = locate(t0);
+                let cm = [_mm256_set1_epi32(1), n0, n01][m];
+                let (i_m, c_m) = {
+                    let x = clamped(t0, m);
+                    let i = _mm256_cvttps_epi32(_mm256_min_ps(x, last[m]));
+                    (i, _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i))
+                };
+                Fixed {
+                    m,
+                    base: _mm256_sub_epi32(base, _mm256_mullo_epi32(i_m, strides[m])),
+                    idx: _mm256_sub_epi32(idx, _mm256_mullo_epi32(c_m, cm)),
+                    f,
+                    cell,
+                    o: o[m],
+                    d: d[m],
+                    max: maxv[m],
+                    last: last[m],
+                    stride: strides[m],
+                    cm,
+                }
+            })
+        };
+        // `locate` for a packet with `fixed` axes.
+        let locate_along = |t: __m256, fx: &Fixed| {
+            let p = _mm256_add_ps(fx.o, _mm256_mul_ps(t, fx.d));
+            let x = _mm256_min_ps(_mm256_max_ps(p, zero), fx.max);
+            let i = _mm256_cvttps_epi32(_mm256_min_ps(x, fx.last));
+            let fm = _mm256_sub_ps(x, _mm256_cvtepi32_ps(i));
+            let c = _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i);
+            let base = _mm256_add_epi32(fx.base, _mm256_mullo_epi32(i, fx.stride));
+            let idx = _mm256_add_epi32(fx.idx, _mm256_mullo_epi32(c, fx.cm));
+            let (mut f, mut cell) = (fx.f, fx.cell);
+            match fx.m {
+                0 => (f[0], cell[0]) = (fm, c),
+                1 => (f[1], cell[1]) = (fm, c),
+                _ => (f[2], cell[2]) = (fm, c),
+            }
+            (base, f, cell, idx)
+        };
         loop {
             let kv = _mm256_set1_epi32(k);
             // Lanes whose ray claims sample k and has not terminated.
@@ -454,7 +523,10 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             // A live lane: this iteration samples or leaps.
             st.steps += 1;
             let t = _mm256_set1_ps(k as f32 * step);
-            let (base, f, cell, idx) = locate(t);
+            let (base, f, cell, idx) = match &fixed {
+                Some(fx) => locate_along(t, fx),
+                None => locate(t),
+            };
             lookup(idx, &mut last_idx, &mut lv, &mut occ_bits);
             if occ_bits & live_bits == 0 {
                 // Every live lane is in an empty cell: the packet leaps.
@@ -492,6 +564,23 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         *px = [out[0][j], out[1][j], out[2][j], out[3][j]];
     }
     st
+}
+
+/// A lockstep packet's two fixed axes (`march8`): their share of the lanes' corners'
+/// base and cell index, their fractions and cells (those of axis `m` unused), and axis
+/// `m`'s constants.
+struct Fixed {
+    m: usize,
+    base: __m256i,
+    idx: __m256i,
+    f: [__m256; 3],
+    cell: [__m256i; 3],
+    o: __m256,
+    d: __m256,
+    max: __m256,
+    last: __m256,
+    stride: __m256i,
+    cm: __m256i,
 }
 
 /// The table entries `rgba[bin]` of the eight lanes' bins, as red, green, blue and
