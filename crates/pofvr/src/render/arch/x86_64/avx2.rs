@@ -66,9 +66,9 @@ pub(crate) trait Gather8: Voxel {
     /// [`Gather8::corners8`] by `vpgatherdd`, one instruction per word for the eight lanes
     /// (the packet loop's form where gathers measured faster, `super::gather`): the same
     /// words, so the same corners, for the lanes whose sign bit is set in `mask`; the
-    /// others read nothing and their corners are 0. In lockstep the packet loop masks
-    /// only the lanes outside their ray's samples, so that no read waits on the occupancy
-    /// lookup (`packet::march8`'s `sample!`).
+    /// others read nothing and their corners are 0. The packet loop masks the lanes
+    /// outside their ray's samples (and, lane by lane, those that have just leapt), so
+    /// that no read waits on the occupancy lookup (`packet::march8`'s `sample!`).
     ///
     /// # Safety
     /// As [`Gather8::corners8`], for the lanes in `mask`.

@@ -217,16 +217,22 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     };
     // Each lane's sample at `t`: its corners' base, fractions, occupancy cell per axis, and
     // that cell's index in the table (lane-wise `TrilinearSampler::cell` and `Skip::cell`).
+    // On one axis (the ray's origin and direction, the data's largest position and last
+    // cell there): the sampler's clamped position, cell and fraction at `t` (the whole
+    // volume's: origin 0).
+    let on_axis = |t: __m256, o: __m256, d: __m256, max: __m256, last: __m256| {
+        let p = _mm256_add_ps(o, _mm256_mul_ps(t, d));
+        let x = _mm256_min_ps(_mm256_max_ps(p, zero), max);
+        let i = _mm256_cvttps_epi32(_mm256_min_ps(x, last));
+        (x, i, _mm256_sub_ps(x, _mm256_cvtepi32_ps(i)))
+    };
     let locate = |t: __m256| {
         let mut base = _mm256_setzero_si256();
         let mut f = [zero; 3];
         let mut cell = [_mm256_setzero_si256(); 3];
         for a in 0..3 {
-            // The sampler's clamp, cell and fraction (the whole volume's: origin 0).
-            let p = _mm256_add_ps(o[a], _mm256_mul_ps(t, d[a]));
-            let x = _mm256_min_ps(_mm256_max_ps(p, zero), maxv[a]);
-            let i = _mm256_cvttps_epi32(_mm256_min_ps(x, last[a]));
-            f[a] = _mm256_sub_ps(x, _mm256_cvtepi32_ps(i));
+            let (_, i, fa) = on_axis(t, o[a], d[a], maxv[a], last[a]);
+            f[a] = fa;
             base = _mm256_add_epi32(base, _mm256_mullo_epi32(i, strides[a]));
             cell[a] = _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i);
         }
@@ -369,7 +375,6 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         // occupied one samples, in the same iteration; each lane's samples are those of
         // the lockstep loop below, in the same order, so the pixels are the same.
         let mut kv = blend_i(k1v, k0v, has);
-        let has_bits = bits(has);
         // The lanes open as of an earlier step choose the lanes that move, leap and load;
         // `open`, this step's, those that composite and count (as in `packet16`).
         let mut lag = 0xFFu32;
@@ -380,9 +385,9 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             let open = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
                 acc[3], ert,
             )));
-            // Lanes short of their last sample that were open a step ago.
-            let go =
-                bits(_mm256_cmpgt_epi32(k1v, kv)) & has_bits & std::mem::replace(&mut lag, open);
+            // Lanes short of their last sample, and of those the ones open a step ago.
+            let short = _mm256_and_si256(has, _mm256_cmpgt_epi32(k1v, kv));
+            let go = bits(short) & std::mem::replace(&mut lag, open);
             let live = go & open;
             if live == 0 {
                 break;
@@ -410,13 +415,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             }
             if need != 0 {
                 let own = if gather {
-                    Some((
-                        _mm256_andnot_si256(
-                            mask_of(leapt),
-                            _mm256_and_si256(has, _mm256_cmpgt_epi32(k1v, kv)),
-                        ),
-                        load & leapt,
-                    ))
+                    Some((_mm256_andnot_si256(mask_of(leapt), short), load & leapt))
                 } else {
                     None
                 };
@@ -443,10 +442,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         let fixed = {
             let t0 = _mm256_mul_ps(_mm256_cvtepi32_ps(k0v), stepv);
             let t1 = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_sub_epi32(k1v, one)), stepv);
-            let clamped = |t: __m256, a: usize| {
-                let p = _mm256_add_ps(o[a], _mm256_mul_ps(t, d[a]));
-                _mm256_min_ps(_mm256_max_ps(p, zero), maxv[a])
-            };
+            let clamped = |t: __m256, a: usize| on_axis(t, o[a], d[a], maxv[a], last[a]).0;
             let has_bits = bits(has);
             let same: [bool; 3] = [0, 1, 2].map(|a| {
                 let eq = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_EQ_OQ>(
@@ -465,15 +461,11 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 // The fixed axes at the first sample, as `locate` works them out.
                 let (base, f, cell, idx) = locate(t0);
                 let cm = [_mm256_set1_epi32(1), n0, n01][m];
-                let (i_m, c_m) = {
-                    let x = clamped(t0, m);
-                    let i = _mm256_cvttps_epi32(_mm256_min_ps(x, last[m]));
-                    (i, _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i))
-                };
+                let (_, i_m, _) = on_axis(t0, o[m], d[m], maxv[m], last[m]);
                 Fixed {
                     m,
                     base: _mm256_sub_epi32(base, _mm256_mullo_epi32(i_m, strides[m])),
-                    idx: _mm256_sub_epi32(idx, _mm256_mullo_epi32(c_m, cm)),
+                    idx: _mm256_sub_epi32(idx, _mm256_mullo_epi32(cell[m], cm)),
                     f,
                     cell,
                     o: o[m],
@@ -487,10 +479,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         };
         // `locate` for a packet with `fixed` axes.
         let locate_along = |t: __m256, fx: &Fixed| {
-            let p = _mm256_add_ps(fx.o, _mm256_mul_ps(t, fx.d));
-            let x = _mm256_min_ps(_mm256_max_ps(p, zero), fx.max);
-            let i = _mm256_cvttps_epi32(_mm256_min_ps(x, fx.last));
-            let fm = _mm256_sub_ps(x, _mm256_cvtepi32_ps(i));
+            let (_, i, fm) = on_axis(t, fx.o, fx.d, fx.max, fx.last);
             let c = _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i);
             let base = _mm256_add_epi32(fx.base, _mm256_mullo_epi32(i, fx.stride));
             let idx = _mm256_add_epi32(fx.idx, _mm256_mullo_epi32(c, fx.cm));
@@ -539,17 +528,9 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 continue;
             }
             let need_bits = occ_bits & live_bits;
-            let load_bits = occ_bits
-                & bits(_mm256_and_si256(started, before_end))
-                & std::mem::replace(&mut lag, bits(open));
-            sample!(
-                base,
-                f,
-                need_bits,
-                load_bits,
-                Some((_mm256_and_si256(started, before_end), 0)),
-                &mut acc
-            );
+            let within = _mm256_and_si256(started, before_end);
+            let load_bits = occ_bits & bits(within) & std::mem::replace(&mut lag, bits(open));
+            sample!(base, f, need_bits, load_bits, Some((within, 0)), &mut acc);
             st.samples += u64::from(need_bits.count_ones());
             st.skipped += u64::from((live_bits & !occ_bits).count_ones());
             k += 1;
