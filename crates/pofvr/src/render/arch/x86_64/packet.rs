@@ -120,11 +120,11 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     debug_assert!(super::avx2::fits(tri));
     debug_assert_eq!(SHADE, p.shade.is_some());
     let mut st = PacketStats::default();
-    // Lane-wise from the rays (plain closures: behind `&dyn Fn` they became calls, one
-    // per lane and axis of every packet, up to 9 % of a frame, `docs/results.md`, stop 41).
-    let o = [0, 1, 2].map(|a| vec8(pk.rays.each_ref().map(|r| r.o[a])));
-    let d = [0, 1, 2].map(|a| vec8(pk.rays.each_ref().map(|r| r.d[a])));
-    let dir = [0, 1, 2].map(|a| vec8(pk.rays.each_ref().map(|r| r.dir[a])));
+    // Lane-wise from the rays.
+    let ([o0, o1, o2], [d0, d1, d2], [e0, e1, e2]) = ray_axes(&pk.rays);
+    let o = [vec8(o0), vec8(o1), vec8(o2)];
+    let d = [vec8(d0), vec8(d1), vec8(d2)];
+    let dir = [vec8(e0), vec8(e1), vec8(e2)];
     // `1 / d`, 0 where `d` is 0: for the leap estimates only.
     let inv = d.map(|d| {
         let zero = _mm256_cmp_ps::<_CMP_EQ_OQ>(d, _mm256_setzero_ps());
@@ -149,7 +149,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     }
     let big = _mm256_set1_epi32(i32::MAX);
     let one = _mm256_set1_epi32(1);
-    let mut acc = [0, 1, 2, 3].map(|c| vec8(pk.acc.map(|px| px[c])));
+    let [r, g, b, a] = channels(&pk.acc);
+    let mut acc = [vec8(r), vec8(g), vec8(b), vec8(a)];
     let (step, ert) = (p.step, _mm256_set1_ps(p.ert));
     let stepv = _mm256_set1_ps(step);
     let inv_step = _mm256_set1_ps(1.0 / step);
@@ -286,16 +287,10 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     // `late` takes those that landed in an occupied cell; loads lane by lane redirect
     // (`None`) there. Frames 0.87-0.97 of redirected ones (docs/results.md, stop 44).
     // A macro, so that each loop gets it inline (as `packet16`'s).
-    macro_rules! sample {
-        ($base:expr, $f:expr, $need:expr, $load:expr, $own:expr, $acc:expr) => {{
-            let (base, f, need_bits, load_bits, own, acc): (
-                __m256i,
-                [__m256; 3],
-                u32,
-                u32,
-                Option<(__m256i, u32)>,
-                &mut [__m256; 4],
-            ) = ($base, $f, $need, $load, $own, $acc);
+    macro_rules! fetch {
+        ($base:expr, $f:expr, $load:expr, $own:expr) => {{
+            let (base, f, load_bits, own): (__m256i, [__m256; 3], u32, Option<(__m256i, u32)>) =
+                ($base, $f, $load, $own);
             // The lines these lanes will read `AHEAD_VOXELS` on.
             if let Some((off, across)) = ahead {
                 let b = _mm256_add_epi32(redirect(base, load_bits), off);
@@ -348,6 +343,13 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     (a, Some([r, g, b]))
                 }
             };
+            (c, f, lerps, bin, alpha, rgb)
+        }};
+    }
+    macro_rules! composite {
+        ($s:expr, $need:expr, $acc:expr) => {{
+            let (c, f, lerps, bin, alpha, rgb) = $s;
+            let (need_bits, acc): (u32, &mut [__m256; 4]) = ($need, $acc);
             let opaque = _mm256_and_ps(
                 _mm256_castsi256_ps(mask_of(need_bits)),
                 _mm256_cmp_ps::<_CMP_NEQ_UQ>(alpha, zero),
@@ -367,6 +369,12 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     *a = _mm256_blendv_ps(*a, _mm256_add_ps(*a, _mm256_mul_ps(w, s)), opaque);
                 }
             }
+        }};
+    }
+    macro_rules! sample {
+        ($base:expr, $f:expr, $need:expr, $load:expr, $own:expr, $acc:expr) => {{
+            let s = fetch!($base, $f, $load, $own);
+            composite!(s, $need, $acc);
         }};
     }
     if OBLIQUE {
@@ -529,7 +537,40 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             }
             let need_bits = occ_bits & live_bits;
             let within = _mm256_and_si256(started, before_end);
-            let load_bits = occ_bits & bits(within) & std::mem::replace(&mut lag, bits(open));
+            let open_bits = bits(open);
+            let load_bits = occ_bits & bits(within) & std::mem::replace(&mut lag, open_bits);
+            // Sample k + 1 too where every lane stays in its cell (so in its occupancy):
+            // the two samples' reads and lerps are independent, and issued side by side
+            // they overlap; they composite in order, k + 1's lanes chosen by the opacity
+            // after k's, as two steps would.
+            let kv2 = _mm256_add_epi32(kv, one);
+            let t2 = _mm256_set1_ps((k + 1) as f32 * step);
+            let (base2, f2, _, idx2) = match &fixed {
+                Some(fx) => locate_along(t2, fx),
+                None => locate(t2),
+            };
+            if bits(_mm256_cmpeq_epi32(idx2, idx)) == 0xFF {
+                let within2 = _mm256_and_si256(
+                    _mm256_cmpgt_epi32(_mm256_add_epi32(kv2, one), k0v),
+                    _mm256_cmpgt_epi32(k1v, kv2),
+                );
+                let load2 = occ_bits & bits(within2) & open_bits;
+                let s1 = fetch!(base, f, load_bits, Some((within, 0)));
+                let s2 = fetch!(base2, f2, load2, Some((within2, 0)));
+                composite!(s1, need_bits, &mut acc);
+                let open2 = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
+                let live2 = bits(_mm256_and_si256(within2, open2));
+                lag = bits(open2);
+                let need2 = occ_bits & live2;
+                composite!(s2, need2, &mut acc);
+                st.steps += u64::from(live2 != 0);
+                st.samples += u64::from(need_bits.count_ones() + need2.count_ones());
+                st.skipped += u64::from(
+                    (live_bits & !occ_bits).count_ones() + (live2 & !occ_bits).count_ones(),
+                );
+                k += 2;
+                continue;
+            }
             sample!(base, f, need_bits, load_bits, Some((within, 0)), &mut acc);
             st.samples += u64::from(need_bits.count_ones());
             st.skipped += u64::from((live_bits & !occ_bits).count_ones());
@@ -689,6 +730,38 @@ fn blend_i(a: __m256i, b: __m256i, m: __m256i) -> __m256i {
         _mm256_castsi256_ps(b),
         _mm256_castsi256_ps(m),
     ))
+}
+
+/// The rays' origins, displacements and directions, each axis by axis across the lanes.
+// Plain loops, not closures in `map`: those were sometimes compiled as calls, one per lane
+// and axis of every packet (up to 9 % of a frame, stop 41; 7-10 % of a sixteen-lane frame
+// when an unrelated change to this file moved LLVM's inlining, stop 45).
+#[inline(always)]
+pub(crate) fn ray_axes<const N: usize>(rays: &[IndexRay; N]) -> (Axes<N>, Axes<N>, Axes<N>) {
+    let (mut o, mut d, mut dir) = ([[0f32; N]; 3], [[0f32; N]; 3], [[0f32; N]; 3]);
+    for (j, r) in rays.iter().enumerate() {
+        for a in 0..3 {
+            o[a][j] = r.o[a];
+            d[a][j] = r.d[a];
+            dir[a][j] = r.dir[a];
+        }
+    }
+    (o, d, dir)
+}
+
+/// Three axes of `N` lanes.
+pub(crate) type Axes<const N: usize> = [[f32; N]; 3];
+
+/// The lanes' premultiplied RGBA, channel by channel (a loop, as [`ray_axes`]).
+#[inline(always)]
+pub(crate) fn channels<const N: usize>(acc: &[[f32; 4]; N]) -> [[f32; N]; 4] {
+    let mut out = [[0f32; N]; 4];
+    for (j, px) in acc.iter().enumerate() {
+        for c in 0..4 {
+            out[c][j] = px[c];
+        }
+    }
+    out
 }
 
 /// Eight floats as a vector.

@@ -193,11 +193,11 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     debug_assert!(super::avx2::fits(tri));
     debug_assert_eq!(SHADE, p.shade.is_some());
     let mut st = PacketStats::default();
-    // Lane-wise from the rays (plain closures: behind `&dyn Fn` they became calls, one
-    // per lane and axis of every packet, up to 9 % of a frame, `docs/results.md`, stop 41).
-    let o = [0, 1, 2].map(|a| vec16(pk.rays.each_ref().map(|r| r.o[a])));
-    let d = [0, 1, 2].map(|a| vec16(pk.rays.each_ref().map(|r| r.d[a])));
-    let dir = [0, 1, 2].map(|a| vec16(pk.rays.each_ref().map(|r| r.dir[a])));
+    // Lane-wise from the rays (`packet::ray_axes`: loops, not closures).
+    let ([o0, o1, o2], [d0, d1, d2], [e0, e1, e2]) = super::packet::ray_axes(&pk.rays);
+    let o = [vec16(o0), vec16(o1), vec16(o2)];
+    let d = [vec16(d0), vec16(d1), vec16(d2)];
+    let dir = [vec16(e0), vec16(e1), vec16(e2)];
     // `1 / d`, 0 where `d` is 0: for the leap estimates only.
     let inv = d.map(|d| {
         let zero = _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(d, _mm512_setzero_ps());
@@ -224,7 +224,8 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     let one = _mm512_set1_epi32(1);
     let hmin =
         |m: __mmask16, v: __m512i| _mm512_reduce_min_epi32(_mm512_mask_blend_epi32(m, big, v));
-    let mut acc = [0, 1, 2, 3].map(|c| vec16(pk.acc.map(|px| px[c])));
+    let [r, g, b, a] = super::packet::channels(&pk.acc);
+    let mut acc = [vec16(r), vec16(g), vec16(b), vec16(a)];
     let (step, ert) = (p.step, _mm512_set1_ps(p.ert));
     let stepv = _mm512_set1_ps(step);
     let inv_step = _mm512_set1_ps(1.0 / step);
