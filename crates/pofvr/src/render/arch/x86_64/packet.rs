@@ -408,6 +408,42 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             let load = go & occ_bits;
             let mut next = _mm256_add_epi32(kv, one);
             st.steps += 1;
+            // Where no lane leaps, sample k + 1 too (each lane's next), so that the two
+            // samples' reads and lerps overlap, as in lockstep; they composite in order,
+            // the lanes of k + 1 chosen by the opacity after k's, and a lane whose k + 1
+            // lies in an empty cell leaps from there next time round, as it would have.
+            if empty == 0 && need != 0 {
+                let go_m = mask_of(go);
+                let kv2 = _mm256_add_epi32(kv, one);
+                let (base2, f2, _, idx2) = locate(_mm256_mul_ps(_mm256_cvtepi32_ps(kv2), stepv));
+                let own = if gather {
+                    Some((_mm256_andnot_si256(mask_of(leapt), short), load & leapt))
+                } else {
+                    None
+                };
+                let s1 = fetch!(base, f, load, own);
+                lookup(idx2, &mut last_idx, &mut lv, &mut occ_bits);
+                let short2 =
+                    _mm256_and_si256(_mm256_and_si256(has, go_m), _mm256_cmpgt_epi32(k1v, kv2));
+                let go2 = bits(short2) & open;
+                let load2 = go2 & occ_bits;
+                let own2 = if gather { Some((short2, 0)) } else { None };
+                let s2 = fetch!(base2, f2, load2, own2);
+                composite!(s1, need, &mut acc);
+                let open2 = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
+                    acc[3], ert,
+                )));
+                let need2 = go2 & open2 & occ_bits;
+                composite!(s2, need2, &mut acc);
+                st.steps += u64::from(go2 & open2 != 0);
+                st.samples += u64::from(need.count_ones() + need2.count_ones());
+                // Lanes of step k move on one; those of k + 1 in an occupied cell a second
+                // (the rest leap from k + 1 next time round).
+                kv = _mm256_sub_epi32(_mm256_sub_epi32(kv, go_m), mask_of(load2));
+                lag = open2;
+                leapt = 0;
+                continue;
+            }
             if empty != 0 {
                 let kb = leap_end(kv, &cell, lv, &leap_ray, &cells_at);
                 let kb = _mm256_max_epi32(kb, next);
