@@ -22,7 +22,7 @@ use std::arch::x86_64::{
     _mm512_castps256_ps512, _mm512_castsi512_si256, _mm512_cmp_ps_mask, _mm512_cmpeq_epi32_mask,
     _mm512_cmpgt_epi32_mask, _mm512_cvtepi32_ps, _mm512_cvttps_epi32, _mm512_div_ps,
     _mm512_extracti64x4_epi64, _mm512_insertf32x8, _mm512_loadu_epi32, _mm512_loadu_ps,
-    _mm512_mask_add_ps, _mm512_mask_blend_epi32, _mm512_mask_blend_ps,
+    _mm512_mask_add_epi32, _mm512_mask_add_ps, _mm512_mask_blend_epi32, _mm512_mask_blend_ps,
     _mm512_mask_reduce_add_epi32, _mm512_max_epi32, _mm512_max_ps, _mm512_min_epi32, _mm512_min_ps,
     _mm512_mul_ps, _mm512_mullo_epi32, _mm512_permutexvar_epi32, _mm512_reduce_min_epi32,
     _mm512_set1_epi32, _mm512_set1_ps, _mm512_setzero_ps, _mm512_setzero_si512, _mm512_slli_epi32,
@@ -346,10 +346,11 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     // A macro rather than a closure, so that both loops get it inline: as a closure it
     // was one call with the accumulators through memory per sample step, not inlined
     // at two call sites (frames up to 10 % slower, `docs/results.md`).
-    macro_rules! sample {
-        ($base:expr, $f:expr, $need:expr, $acc:expr) => {{
-            let (base, f, need, acc): (__m512i, [__m512; 3], __mmask16, &mut [__m512; 4]) =
-                ($base, $f, $need, $acc);
+    // In two halves, `fetch` (reads, lerps, bins, opacity) and `composite`, so that two
+    // samples' fetches can be issued side by side (`pair` below).
+    macro_rules! fetch {
+        ($base:expr, $f:expr) => {{
+            let (base, f): (__m512i, [__m512; 3]) = ($base, $f);
             // SAFETY: every lane's position is clamped into the data, so its cell's corners
             // are inside `v`; past `limit` the gather of a wider word would read past the end.
             let c: [__m512; 8] = unsafe {
@@ -400,6 +401,17 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
                     (a, Some([r, g, b]))
                 }
             };
+            (c, [c00, c10, c01, c11, c0, c1], f, bin, alpha, rgb)
+        }};
+    }
+    macro_rules! composite {
+        ($s:expr, $need:expr, $acc:expr) => {{
+            let (c, [c00, c10, c01, c11, c0, c1], f, bin, alpha, rgb) = $s;
+            let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
+            let (need, acc): (__mmask16, &mut [__m512; 4]) = ($need, $acc);
+            let lerp = |a: __m512, b: __m512, w: __m512| {
+                _mm512_add_ps(a, _mm512_mul_ps(_mm512_sub_ps(b, a), w))
+            };
             let opaque = need & _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(alpha, zero);
             if opaque != 0 {
                 // SAFETY: as above.
@@ -425,6 +437,12 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
                     *a = _mm512_mask_add_ps(*a, opaque, *a, _mm512_mul_ps(w, s));
                 }
             }
+        }};
+    }
+    macro_rules! sample {
+        ($base:expr, $f:expr, $need:expr, $acc:expr) => {{
+            let s = fetch!($base, $f);
+            composite!(s, $need, $acc);
         }};
     }
     // The lines the lanes will read `AHEAD_VOXELS` on, from bases `redirect` gave.
@@ -473,6 +491,34 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
             let load = go & occ_bits;
             let mut next = _mm512_add_epi32(kv, one);
             st.steps += 1;
+            // Where no lane leaps, sample k + 1 too (each lane's next), so that the two
+            // samples' reads and lerps overlap; they composite in order, the lanes of
+            // k + 1 chosen by the opacity after k's, and a lane whose k + 1 lies in an
+            // empty cell leaps from there next time round, as it would have (as
+            // `packet::march8`).
+            if empty == 0 && need != 0 {
+                let kv2 = next;
+                let (base2, f2, _, idx2) = locate(_mm512_mul_ps(_mm512_cvtepi32_ps(kv2), stepv));
+                let b1 = redirect(base, load);
+                prefetch!(b1);
+                let s1 = fetch!(b1, f);
+                lookup(idx2, &mut last_idx, &mut lv, &mut occ_bits);
+                let go2 = _mm512_cmpgt_epi32_mask(k1v, kv2) & go & open;
+                let load2 = go2 & occ_bits;
+                let b2 = redirect(base2, load2);
+                prefetch!(b2);
+                let s2 = fetch!(b2, f2);
+                composite!(s1, need, &mut acc);
+                let open2 = _mm512_cmp_ps_mask::<_CMP_NGE_UQ>(acc[3], ert);
+                let need2 = go2 & open2 & occ_bits;
+                composite!(s2, need2, &mut acc);
+                st.steps += u64::from(go2 & open2 != 0);
+                st.samples += u64::from(need.count_ones() + need2.count_ones());
+                kv = _mm512_mask_add_epi32(kv, go, kv, one);
+                kv = _mm512_mask_add_epi32(kv, load2, kv, one);
+                lag = open2;
+                continue;
+            }
             if empty != 0 {
                 // SAFETY: `lv` holds sixteen i32.
                 let leap = unsafe { _mm512_loadu_epi32(lv.as_ptr()) };
@@ -533,10 +579,35 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
                 continue;
             }
             let need = occ_bits & live;
-            let base = redirect(
-                base,
-                occ_bits & started & before_end & std::mem::replace(&mut lag, open),
-            );
+            let load = occ_bits & started & before_end & std::mem::replace(&mut lag, open);
+            // Sample k + 1 too where every lane stays in its cell (so in its occupancy):
+            // the two samples' reads and lerps overlap; they composite in order, k + 1's
+            // lanes chosen by the opacity after k's, as two steps would.
+            let kv2 = _mm512_add_epi32(kv, one);
+            let (base2, f2, _, idx2) = locate(_mm512_set1_ps((k + 1) as f32 * step));
+            if _mm512_cmpeq_epi32_mask(idx2, idx) == 0xFFFF {
+                let within2 = _mm512_cmpgt_epi32_mask(_mm512_add_epi32(kv2, one), k0v)
+                    & _mm512_cmpgt_epi32_mask(k1v, kv2);
+                let b1 = redirect(base, load);
+                prefetch!(b1);
+                let s1 = fetch!(b1, f);
+                let b2 = redirect(base2, occ_bits & within2 & open);
+                prefetch!(b2);
+                let s2 = fetch!(b2, f2);
+                composite!(s1, need, &mut acc);
+                let open2 = _mm512_cmp_ps_mask::<_CMP_NGE_UQ>(acc[3], ert);
+                let live2 = within2 & open2;
+                lag = open2;
+                let need2 = occ_bits & live2;
+                composite!(s2, need2, &mut acc);
+                st.steps += u64::from(live2 != 0);
+                st.samples += u64::from(need.count_ones() + need2.count_ones());
+                st.skipped +=
+                    u64::from((live & !occ_bits).count_ones() + (live2 & !occ_bits).count_ones());
+                k += 2;
+                continue;
+            }
+            let base = redirect(base, load);
             prefetch!(base);
             sample!(base, f, need, &mut acc);
             st.samples += u64::from(need.count_ones());
