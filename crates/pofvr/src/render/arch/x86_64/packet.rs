@@ -575,16 +575,60 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             let within = _mm256_and_si256(started, before_end);
             let open_bits = bits(open);
             let load_bits = occ_bits & bits(within) & std::mem::replace(&mut lag, open_bits);
-            // Sample k + 1 too where every lane stays in its cell (so in its occupancy):
-            // the two samples' reads and lerps are independent, and issued side by side
-            // they overlap; they composite in order, k + 1's lanes chosen by the opacity
-            // after k's, as two steps would.
+            // Samples k + 1 (and k + 2) too where every lane stays in its cell (so in its
+            // occupancy): the samples' reads and lerps are independent, and issued side by
+            // side they overlap; they composite in order, each one's lanes chosen by the
+            // opacity after the one before, as separate steps would. Frames 0.90-0.98 of
+            // one sample a step with pairs, 0.94-0.99 of pairs with triples; four at a
+            // time were slower again (docs/results.md, stop 45).
             let kv2 = _mm256_add_epi32(kv, one);
             let t2 = _mm256_set1_ps((k + 1) as f32 * step);
             let (base2, f2, _, idx2) = match &fixed {
                 Some(fx) => locate_along(t2, fx),
                 None => locate(t2),
             };
+            let t3 = _mm256_set1_ps((k + 2) as f32 * step);
+            let (base3, f3, _, idx3) = match &fixed {
+                Some(fx) => locate_along(t3, fx),
+                None => locate(t3),
+            };
+            // Positions are monotone in k: a lane in one cell at k and k + 2 is in it at
+            // k + 1.
+            if bits(_mm256_cmpeq_epi32(idx3, idx)) == 0xFF {
+                let within_at = |j: i32| {
+                    let kj = _mm256_add_epi32(kv, _mm256_set1_epi32(j));
+                    _mm256_and_si256(
+                        _mm256_cmpgt_epi32(_mm256_add_epi32(kj, one), k0v),
+                        _mm256_cmpgt_epi32(k1v, kj),
+                    )
+                };
+                let (w2, w3) = (within_at(1), within_at(2));
+                let s1 = fetch!(base, f, load_bits, Some((within, 0)));
+                let s2 = fetch!(base2, f2, occ_bits & bits(w2) & open_bits, Some((w2, 0)));
+                let s3 = fetch!(base3, f3, occ_bits & bits(w3) & open_bits, Some((w3, 0)));
+                composite!(s1, need_bits, &mut acc);
+                let mut need_sum = need_bits.count_ones();
+                let mut skip_sum = (live_bits & !occ_bits).count_ones();
+                // The next sample: its lanes those within their ray and open now.
+                macro_rules! then {
+                    ($s:expr, $w:expr) => {{
+                        let o = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
+                        let l = bits(_mm256_and_si256($w, o));
+                        let n = occ_bits & l;
+                        composite!($s, n, &mut acc);
+                        st.steps += u64::from(l != 0);
+                        need_sum += n.count_ones();
+                        skip_sum += (l & !occ_bits).count_ones();
+                        bits(o)
+                    }};
+                }
+                then!(s2, w2);
+                lag = then!(s3, w3);
+                st.samples += u64::from(need_sum);
+                st.skipped += u64::from(skip_sum);
+                k += 3;
+                continue;
+            }
             if bits(_mm256_cmpeq_epi32(idx2, idx)) == 0xFF {
                 let within2 = _mm256_and_si256(
                     _mm256_cmpgt_epi32(_mm256_add_epi32(kv2, one), k0v),
