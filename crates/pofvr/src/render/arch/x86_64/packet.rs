@@ -428,6 +428,48 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 let go2 = bits(short2) & open;
                 let load2 = go2 & occ_bits;
                 let own2 = if gather { Some((short2, 0)) } else { None };
+                if go2 != 0 && go2 & !occ_bits == 0 {
+                    // No lane leaps at k + 1 either: k + 2 as well (frames 0.93-0.97 of
+                    // pairs, chest1728 30,20 0.985-1.015; docs/results.md, stop 45). The
+                    // lanes that move to k + 2 are those of k + 1, terminated ones too
+                    // (their samples do not composite: `need3` asks `open3`).
+                    let occ2 = occ_bits;
+                    let go2_m = mask_of(go2);
+                    let kv3 = _mm256_add_epi32(kv2, one);
+                    let (base3, f3, _, idx3) =
+                        locate(_mm256_mul_ps(_mm256_cvtepi32_ps(kv3), stepv));
+                    let s2 = fetch!(base2, f2, load2, own2);
+                    lookup(idx3, &mut last_idx, &mut lv, &mut occ_bits);
+                    let short3 = _mm256_and_si256(
+                        _mm256_and_si256(has, go2_m),
+                        _mm256_cmpgt_epi32(k1v, kv3),
+                    );
+                    let go3 = bits(short3);
+                    let load3 = go3 & occ_bits;
+                    let own3 = if gather { Some((short3, 0)) } else { None };
+                    let s3 = fetch!(base3, f3, load3, own3);
+                    composite!(s1, need, &mut acc);
+                    let open2 = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
+                        acc[3], ert,
+                    )));
+                    let need2 = go2 & open2 & occ2;
+                    composite!(s2, need2, &mut acc);
+                    let open3 = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
+                        acc[3], ert,
+                    )));
+                    let need3 = go3 & open3 & occ_bits;
+                    composite!(s3, need3, &mut acc);
+                    st.steps += u64::from(go2 & open2 != 0) + u64::from(go3 & open3 != 0);
+                    st.samples +=
+                        u64::from(need.count_ones() + need2.count_ones() + need3.count_ones());
+                    kv = _mm256_sub_epi32(
+                        _mm256_sub_epi32(_mm256_sub_epi32(kv, go_m), go2_m),
+                        mask_of(load3),
+                    );
+                    lag = open3;
+                    leapt = 0;
+                    continue;
+                }
                 let s2 = fetch!(base2, f2, load2, own2);
                 composite!(s1, need, &mut acc);
                 let open2 = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
