@@ -87,6 +87,14 @@ fn within(a: __m256i, x: __m256i, b: __m256i) -> __m256i {
     _mm256_andnot_si256(out, _mm256_set1_epi32(-1))
 }
 
+/// The lanes whose opacity `a` is short of the termination threshold `ert`: the
+/// reference's `acc[3] >= ert` stop, negated (so NaN stays open, as there).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn open_lanes(a: __m256, ert: __m256) -> __m256i {
+    _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(a, ert))
+}
+
 /// The least of the eight lanes.
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -362,7 +370,10 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     // SAFETY: AVX2 (this function's target features).
                     let g = unsafe { gradient8(&c, &lerps, &f) };
                     let l = lambert8(g, spacing, dir);
-                    s = s.map(|s| _mm256_mul_ps(s, l));
+                    // A loop: a `map` closure here can be compiled as a call (stop 45).
+                    for c in &mut s {
+                        *c = _mm256_mul_ps(*c, l);
+                    }
                 }
                 let w = _mm256_sub_ps(_mm256_set1_ps(1.0), acc[3]);
                 for (a, s) in acc.iter_mut().zip([s[0], s[1], s[2], alpha]) {
@@ -390,9 +401,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         let mut leapt = 0u32;
         loop {
             // As the reference's `acc[3] >= ert` stop, negated.
-            let open = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
-                acc[3], ert,
-            )));
+            let open = bits(open_lanes(acc[3], ert));
             // Lanes short of their last sample, and of those the ones open a step ago.
             let short = _mm256_and_si256(has, _mm256_cmpgt_epi32(k1v, kv));
             let go = bits(short) & std::mem::replace(&mut lag, open);
@@ -449,14 +458,10 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     let own3 = if gather { Some((short3, 0)) } else { None };
                     let s3 = fetch!(base3, f3, load3, own3);
                     composite!(s1, need, &mut acc);
-                    let open2 = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
-                        acc[3], ert,
-                    )));
+                    let open2 = bits(open_lanes(acc[3], ert));
                     let need2 = go2 & open2 & occ2;
                     composite!(s2, need2, &mut acc);
-                    let open3 = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
-                        acc[3], ert,
-                    )));
+                    let open3 = bits(open_lanes(acc[3], ert));
                     let need3 = go3 & open3 & occ_bits;
                     composite!(s3, need3, &mut acc);
                     st.steps += u64::from(go2 & open2 != 0) + u64::from(go3 & open3 != 0);
@@ -472,9 +477,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 }
                 let s2 = fetch!(base2, f2, load2, own2);
                 composite!(s1, need, &mut acc);
-                let open2 = bits(_mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(
-                    acc[3], ert,
-                )));
+                let open2 = bits(open_lanes(acc[3], ert));
                 let need2 = go2 & open2 & occ_bits;
                 composite!(s2, need2, &mut acc);
                 st.steps += u64::from(go2 & open2 != 0);
@@ -583,7 +586,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             let started = _mm256_cmpgt_epi32(_mm256_add_epi32(kv, one), k0v);
             let before_end = _mm256_cmpgt_epi32(k1v, kv);
             // As the reference's `acc[3] >= ert` stop, negated.
-            let open = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
+            let open = open_lanes(acc[3], ert);
             let live = _mm256_and_si256(_mm256_and_si256(started, before_end), open);
             // Lanes yet to start.
             let pending = _mm256_andnot_si256(started, has);
@@ -654,7 +657,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 // The next sample: its lanes those within their ray and open now.
                 macro_rules! then {
                     ($s:expr, $w:expr) => {{
-                        let o = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
+                        let o = open_lanes(acc[3], ert);
                         let l = bits(_mm256_and_si256($w, o));
                         let n = occ_bits & l;
                         composite!($s, n, &mut acc);
@@ -680,7 +683,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 let s1 = fetch!(base, f, load_bits, Some((within, 0)));
                 let s2 = fetch!(base2, f2, load2, Some((within2, 0)));
                 composite!(s1, need_bits, &mut acc);
-                let open2 = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(acc[3], ert));
+                let open2 = open_lanes(acc[3], ert);
                 let live2 = bits(_mm256_and_si256(within2, open2));
                 lag = bits(open2);
                 let need2 = occ_bits & live2;
