@@ -299,9 +299,11 @@ fn march_shaded_and_unshaded_on_every_axis_view() {
         (0.0, -90.0),
     ] {
         for shade in [false, true] {
-            for ert in [0.95, 1.0] {
+            // Steps under a voxel too: then consecutive samples of a packet in lockstep
+            // share their cell's corners, which the eight-lane loop reads once.
+            for (ert, step) in [(0.95, 1.0), (1.0, 1.0), (0.95, 0.3), (1.0, 0.45)] {
                 let settings = RenderSettings {
-                    step: 1.0,
+                    step,
                     ert,
                     shade,
                     jitter: None,

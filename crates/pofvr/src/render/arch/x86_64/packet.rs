@@ -30,8 +30,8 @@ use std::arch::x86_64::{
     _mm256_max_ps, _mm256_min_epi32, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps,
     _mm256_mullo_epi32, _mm256_or_si256, _mm256_permutevar8x32_epi32, _mm256_set1_epi32,
     _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_slli_epi32,
-    _mm256_srli_epi32, _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32, _mm256_sub_ps,
-    _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
+    _mm256_srl_epi32, _mm256_srli_epi32, _mm256_storeu_ps, _mm256_storeu_si256, _mm256_sub_epi32,
+    _mm256_sub_ps, _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _CMP_NEQ_UQ, _CMP_NGE_UQ,
 };
 
 use super::super::MarchParams;
@@ -281,6 +281,13 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         blend_i(_mm256_permutevar8x32_epi32(base, src), base, mask_of(load))
     };
     let every = _mm256_set1_epi32(-1);
+    // The line each lane last asked for (lockstep): along an axis a lane stays on one line
+    // for several samples where the step is under a voxel (a CT's in-plane axes, whose
+    // spacing is finer than the slices'), and asking again costs a load slot each time.
+    let mut pf_last = _mm256_set1_epi32(-1);
+    let line_shift = std::arch::x86_64::_mm_cvtsi32_si128(
+        (64 / std::mem::size_of::<T>()).trailing_zeros() as i32,
+    );
     // One sample of the lanes in `need`, read by the lanes in `load` (a superset),
     // composited into `acc` as the reference does: the same in lockstep and lane by lane.
     // `own` = `Some((reads, late))`: the lanes read their own corners, not redirected
@@ -295,18 +302,28 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     // `late` takes those that landed in an occupied cell; loads lane by lane redirect
     // (`None`) there. Frames 0.87-0.97 of redirected ones (docs/results.md, stop 44).
     // A macro, so that each loop gets it inline (as `packet16`'s).
-    macro_rules! fetch {
-        ($base:expr, $f:expr, $load:expr, $own:expr) => {{
-            let (base, f, load_bits, own): (__m256i, [__m256; 3], u32, Option<(__m256i, u32)>) =
-                ($base, $f, $load, $own);
+    // `fetch!` in two: the corners' reads, and the lerps and classification.
+    macro_rules! read {
+        ($base:expr, $load:expr, $own:expr) => {{
+            let (base, load_bits, own): (__m256i, u32, Option<(__m256i, u32)>) =
+                ($base, $load, $own);
             // The lines these lanes will read `AHEAD_VOXELS` on.
             if let Some((off, across)) = ahead {
                 let b = _mm256_add_epi32(redirect(base, load_bits), off);
                 let b = _mm256_min_epi32(_mm256_max_epi32(b, _mm256_setzero_si256()), limit);
-                let mut at = [0i32; LANES];
-                // SAFETY: `at` holds eight i32.
-                unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), b) };
-                prefetch::lines(v, &at, across);
+                // In lockstep, only where some lane's line differs from the last asked for.
+                let ask = OBLIQUE || {
+                    let line = _mm256_srl_epi32(b, line_shift);
+                    let same = bits(_mm256_cmpeq_epi32(line, pf_last));
+                    pf_last = line;
+                    same != 0xFF
+                };
+                if ask {
+                    let mut at = [0i32; LANES];
+                    // SAFETY: `at` holds eight i32.
+                    unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), b) };
+                    prefetch::lines(v, &at, across);
+                }
             }
             let (base, reads, late) = match own {
                 Some((reads, late)) => (base, reads, late),
@@ -333,6 +350,12 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     T::corners8(v, base, tri.step)
                 }
             };
+            c
+        }};
+    }
+    macro_rules! classify {
+        ($c:expr, $f:expr) => {{
+            let (c, f): ([__m256; 8], [__m256; 3]) = ($c, $f);
             // SAFETY: AVX2 (this function's target features).
             let (lerps, bin) = unsafe {
                 let l = trilinear8(&c, &f);
@@ -352,6 +375,12 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 }
             };
             (c, f, lerps, bin, alpha, rgb)
+        }};
+    }
+    macro_rules! fetch {
+        ($base:expr, $f:expr, $load:expr, $own:expr) => {{
+            let c = read!($base, $load, $own);
+            classify!(c, $f)
         }};
     }
     macro_rules! composite {
@@ -580,6 +609,13 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             }
             (base, f, cell, idx)
         };
+        // Whether a sample at corners' bases `b` whose reads are those of the lanes `w`
+        // can take the corners read at `b0` for the lanes `w0`: the same base in every
+        // lane, and (gathers read only the lanes asked for) no lane of `w` outside `w0`.
+        let reuse = |b: __m256i, b0: __m256i, w: __m256i, w0: __m256i| {
+            bits(_mm256_cmpeq_epi32(b, b0)) == 0xFF
+                && (!gather || bits(_mm256_andnot_si256(w0, w)) == 0)
+        };
         loop {
             let kv = _mm256_set1_epi32(k);
             // Lanes whose ray claims sample k and has not terminated.
@@ -648,9 +684,23 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     )
                 };
                 let (w2, w3) = (within_at(1), within_at(2));
-                let s1 = fetch!(base, f, load_bits, Some((within, 0)));
-                let s2 = fetch!(base2, f2, occ_bits & bits(w2) & open_bits, Some((w2, 0)));
-                let s3 = fetch!(base3, f3, occ_bits & bits(w3) & open_bits, Some((w3, 0)));
+                // A sample whose every lane is on the same voxel cell as the sample before
+                // (a step under a voxel along the march axis) takes that one's corners,
+                // where it read every lane that this one needs.
+                let c1 = read!(base, load_bits, Some((within, 0)));
+                let c2 = if reuse(base2, base, w2, within) {
+                    c1
+                } else {
+                    read!(base2, occ_bits & bits(w2) & open_bits, Some((w2, 0)))
+                };
+                let c3 = if reuse(base3, base2, w3, w2) {
+                    c2
+                } else {
+                    read!(base3, occ_bits & bits(w3) & open_bits, Some((w3, 0)))
+                };
+                let s1 = classify!(c1, f);
+                let s2 = classify!(c2, f2);
+                let s3 = classify!(c3, f3);
                 composite!(s1, need_bits, &mut acc);
                 let mut need_sum = need_bits.count_ones();
                 let mut skip_sum = (live_bits & !occ_bits).count_ones();
@@ -680,8 +730,14 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     _mm256_cmpgt_epi32(k1v, kv2),
                 );
                 let load2 = occ_bits & bits(within2) & open_bits;
-                let s1 = fetch!(base, f, load_bits, Some((within, 0)));
-                let s2 = fetch!(base2, f2, load2, Some((within2, 0)));
+                let c1 = read!(base, load_bits, Some((within, 0)));
+                let c2 = if reuse(base2, base, within2, within) {
+                    c1
+                } else {
+                    read!(base2, load2, Some((within2, 0)))
+                };
+                let s1 = classify!(c1, f);
+                let s2 = classify!(c2, f2);
                 composite!(s1, need_bits, &mut acc);
                 let open2 = open_lanes(acc[3], ert);
                 let live2 = bits(_mm256_and_si256(within2, open2));
