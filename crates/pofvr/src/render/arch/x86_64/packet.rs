@@ -95,6 +95,20 @@ fn open_lanes(a: __m256, ert: __m256) -> __m256i {
     _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(a, ert))
 }
 
+/// The sum of the eight lanes (each at least 0 here: a leap's length).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn hsum(v: __m256i) -> i32 {
+    use std::arch::x86_64::{
+        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm_add_epi32, _mm_cvtsi128_si32,
+        _mm_shuffle_epi32,
+    };
+    let m = _mm_add_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+    let m = _mm_add_epi32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
+    let m = _mm_add_epi32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
+    _mm_cvtsi128_si32(m)
+}
+
 /// The least of the eight lanes.
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -521,14 +535,8 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             if empty != 0 {
                 let kb = leap_end(kv, &cell, lv, &leap_ray, &cells_at);
                 let kb = _mm256_max_epi32(kb, next);
-                let mut gone = [0i32; LANES];
-                // SAFETY: `gone` holds eight i32.
-                unsafe { _mm256_storeu_si256(gone.as_mut_ptr().cast(), _mm256_sub_epi32(kb, kv)) };
                 let el = empty & live;
-                st.skipped += (0..LANES)
-                    .filter(|j| el >> j & 1 != 0)
-                    .map(|j| gone[j] as u64)
-                    .sum::<u64>();
+                st.skipped += hsum(_mm256_and_si256(_mm256_sub_epi32(kb, kv), mask_of(el))) as u64;
                 next = blend_i(next, kb, mask_of(empty));
             }
             if need != 0 {
