@@ -95,32 +95,35 @@ fn open_lanes(a: __m256, ert: __m256) -> __m256i {
     _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NGE_UQ>(a, ert))
 }
 
+/// The eight lanes of `v` folded by the 128-bit lane-wise `op` (min, add): halves, then
+/// pairs, then neighbours.
+macro_rules! fold8 {
+    ($v:expr, $op:ident) => {{
+        use std::arch::x86_64::{
+            _mm256_castsi256_si128, _mm256_extracti128_si256, _mm_cvtsi128_si32, _mm_shuffle_epi32,
+        };
+        let v: __m256i = $v;
+        let m = $op(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+        let m = $op(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
+        let m = $op(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
+        _mm_cvtsi128_si32(m)
+    }};
+}
+
 /// The sum of the eight lanes (each at least 0 here: a leap's length).
 #[target_feature(enable = "avx2")]
 #[inline]
 fn hsum(v: __m256i) -> i32 {
-    use std::arch::x86_64::{
-        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm_add_epi32, _mm_cvtsi128_si32,
-        _mm_shuffle_epi32,
-    };
-    let m = _mm_add_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
-    let m = _mm_add_epi32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
-    let m = _mm_add_epi32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
-    _mm_cvtsi128_si32(m)
+    use std::arch::x86_64::_mm_add_epi32;
+    fold8!(v, _mm_add_epi32)
 }
 
 /// The least of the eight lanes.
 #[target_feature(enable = "avx2")]
 #[inline]
 fn hmin(v: __m256i) -> i32 {
-    use std::arch::x86_64::{
-        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm_cvtsi128_si32, _mm_min_epi32,
-        _mm_shuffle_epi32,
-    };
-    let m = _mm_min_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
-    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
-    let m = _mm_min_epi32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
-    _mm_cvtsi128_si32(m)
+    use std::arch::x86_64::_mm_min_epi32;
+    fold8!(v, _mm_min_epi32)
 }
 
 /// Marches `pk` front to back through the volume of `tri`, skipping the empty cells of
