@@ -199,10 +199,23 @@ impl RayCaster<'_> {
         let step = self.settings().step;
         let vbox = self.volume_box();
         let p = self.params();
+        let cells = occ.dims().map(|n| n as i32);
         let tab = PacketTables {
             leap: occ.leaps(),
-            cells: occ.dims().map(|n| n as i32),
+            cells,
+            sign: [0; 3],
         };
+        // The octant of the frame's middle ray (the direction of every ray in an
+        // orthographic frame): packets whose every ray heads that way (or runs along an
+        // axis) leap by the table toward it, whose boxes reach only ahead of the ray.
+        let mid = rays.ray(w as u32 / 2, (pixels.len() / w) as u32 / 2);
+        let sign = mid.d.map(|d| if d < 0.0 { -1i8 } else { 1 });
+        let ahead = (N == arch::x86_64::packet::LANES).then(|| PacketTables {
+            leap: occ.leaps_toward(sign),
+            cells,
+            sign,
+        });
+        let heads = |r: &IndexRay| (0..3).all(|a| r.d[a] == 0.0 || (r.d[a] < 0.0) == (sign[a] < 0));
         let none = IndexRay {
             o: [0.0; 3],
             d: [0.0; 3],
@@ -238,7 +251,11 @@ impl RayCaster<'_> {
                                 pk.acc[j] = rows[r * w + x];
                             }
                         }
-                        let ps = march(&tab, &mut pk)?;
+                        let t = match &ahead {
+                            Some(a) if (0..N).all(|j| hit >> j & 1 == 0 || heads(&pk.rays[j])) => a,
+                            _ => &tab,
+                        };
+                        let ps = march(t, &mut pk)?;
                         st.rays.samples += ps.samples;
                         st.skipped_samples += ps.skipped;
                         st.packet_steps += ps.steps;

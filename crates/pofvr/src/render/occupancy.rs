@@ -29,6 +29,8 @@ pub(crate) const CELL_SHIFT: u32 = 2;
 /// The largest chessboard distance kept for an empty cell: a leap crosses at most
 /// `2·EMPTY_CAP − 1` cells along an axis. Each unit costs one pass of the rebuild.
 const EMPTY_CAP: u8 = 8;
+/// [`EMPTY_CAP`] of the tables toward one octant: each unit costs half a pass.
+pub(crate) const AHEAD_CAP: u8 = 16;
 /// Zero bytes after the last of [`Occupancy::leaps`]' entries: a 32-bit gather at any
 /// cell's entry (the sixteen-lane loop's, `arch::x86_64::gather16`) stays inside it.
 pub(crate) const LEAP_PAD: usize = 3;
@@ -244,6 +246,9 @@ pub struct Occupancy {
     /// nearest empty one at [`OCCUPIED_CAP`]. Every cell within `distance − 1` of a cell
     /// (on every axis) is of its kind. Followed by [`LEAP_PAD`] zero bytes.
     leap: Vec<u8>,
+    /// The leap tables toward each octant asked for so far ([`Occupancy::leaps_toward`]),
+    /// by octant (bit `a` set where the sign along axis `a` is negative).
+    toward: Arc<[std::sync::OnceLock<Vec<u8>>; 8]>,
 }
 
 impl Occupancy {
@@ -263,7 +268,12 @@ impl Occupancy {
             });
         let cells = ranges.cells;
         let leap = leap_table(&cell, cells);
-        Occupancy { cells, cell, leap }
+        Occupancy {
+            cells,
+            cell,
+            leap,
+            toward: Arc::new(Default::default()),
+        }
     }
 
     /// Occupancy cells per axis.
@@ -287,6 +297,15 @@ impl Occupancy {
         &self.leap
     }
 
+    /// The leap entries toward `sign` (each ±1): for rays whose direction along each axis
+    /// is 0 or of that sign, an empty cell's distance `D` is to the nearest occupied cell
+    /// ahead, so every cell of `c + sign·[0, D − 1]` is empty. Built on first use.
+    #[must_use]
+    pub(crate) fn leaps_toward(&self, sign: [i8; 3]) -> &[u8] {
+        let o = (0..3).map(|a| usize::from(sign[a] < 0) << a).sum::<usize>();
+        self.toward[o].get_or_init(|| leap_table_toward(&self.cell, self.cells, sign))
+    }
+
     /// Occupied cells, and all cells.
     #[must_use]
     pub fn occupied_cells(&self) -> (usize, usize) {
@@ -308,6 +327,19 @@ pub(crate) fn leap_table(cell: &[bool], cells: [usize; 3]) -> Vec<u8> {
     leap
 }
 
+/// [`leap_table`] toward `sign` (each ±1): an empty cell's entry is the distance to the
+/// nearest occupied cell ahead of it ([`chessboard_toward`]), capped at [`AHEAD_CAP`].
+pub(crate) fn leap_table_toward(cell: &[bool], cells: [usize; 3], sign: [i8; 3]) -> Vec<u8> {
+    let to_occupied = chessboard_toward(cell, true, cells, AHEAD_CAP, sign);
+    let mut leap: Vec<u8> = cell
+        .par_iter()
+        .zip(&to_occupied)
+        .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
+        .collect();
+    leap.resize(leap.len() + LEAP_PAD, 0);
+    leap
+}
+
 /// Per cell of a grid of `dims`, the chessboard distance to the nearest cell whose `kind`
 /// is `seed` (0 for those cells), capped at `cap` (also where there is none).
 ///
@@ -317,6 +349,19 @@ pub(crate) fn leap_table(cell: &[bool], cells: [usize; 3]) -> Vec<u8> {
 /// is `|j| < cap`; each pass is `2·(cap − 1)` runs of byte minima and maxima over shifted
 /// rows or slices, which the compiler vectorises.
 pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
+    chessboard_toward(kind, seed, dims, cap, [0; 3])
+}
+
+/// [`chessboard`] over the seeds on one side only along the axes of nonzero `sign`: the
+/// distance to the nearest seed `c + Δ` with `Δ[a]·sign[a] ≥ 0` (both sides where
+/// `sign[a]` is 0); the box `c + sign·[0, D − 1]` then holds no seed.
+pub(super) fn chessboard_toward(
+    kind: &[bool],
+    seed: bool,
+    dims: [usize; 3],
+    cap: u8,
+    sign: [i8; 3],
+) -> Vec<u8> {
     let [nx, ny, _] = dims;
     let slice = nx * ny;
     let mut d: Vec<u8> = kind
@@ -333,15 +378,23 @@ pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -
         for (out, row) in s.chunks_exact_mut(nx).zip(src.chunks_exact(nx)) {
             for j in 1..=w.min(nx - 1) {
                 let n = nx - j;
-                min_max_into(&mut out[..n], &row[j..], j as u8);
-                min_max_into(&mut out[j..], &row[..n], j as u8);
+                if sign[0] >= 0 {
+                    min_max_into(&mut out[..n], &row[j..], j as u8);
+                }
+                if sign[0] <= 0 {
+                    min_max_into(&mut out[j..], &row[..n], j as u8);
+                }
             }
         }
         src.copy_from_slice(s);
         for j in 1..=w.min(ny - 1) {
             let n = (ny - j) * nx;
-            min_max_into(&mut s[..n], &src[j * nx..], j as u8);
-            min_max_into(&mut s[j * nx..], &src[..n], j as u8);
+            if sign[1] >= 0 {
+                min_max_into(&mut s[..n], &src[j * nx..], j as u8);
+            }
+            if sign[1] <= 0 {
+                min_max_into(&mut s[j * nx..], &src[..n], j as u8);
+            }
         }
     });
     // z, across slices.
@@ -349,10 +402,9 @@ pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -
     let nz = d.len() / slice;
     d.par_chunks_mut(slice).enumerate().for_each(|(z, out)| {
         for j in 1..=w.min(nz - 1) {
-            for zz in [z.checked_sub(j), Some(z + j).filter(|&zz| zz < nz)]
-                .into_iter()
-                .flatten()
-            {
+            let back = z.checked_sub(j).filter(|_| sign[2] <= 0);
+            let ahead = Some(z + j).filter(|&zz| zz < nz && sign[2] >= 0);
+            for zz in [back, ahead].into_iter().flatten() {
                 min_max_into(out, &src[zz * slice..][..slice], j as u8);
             }
         }

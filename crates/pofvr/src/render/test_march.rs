@@ -527,6 +527,48 @@ fn chessboard_distances_match_brute_force() {
 }
 
 #[test]
+fn chessboard_distances_toward_an_octant_match_brute_force() {
+    let mut rng = StdRng::seed_from_u64(47);
+    for (dims, density) in [([7, 5, 9], 0.05), ([1, 12, 3], 0.2), ([9, 8, 7], 0.02)] {
+        let n = dims[0] * dims[1] * dims[2];
+        let kind: Vec<bool> = (0..n).map(|_| rng.gen_bool(density)).collect();
+        let at = |i: usize| [i % dims[0], i / dims[0] % dims[1], i / (dims[0] * dims[1])];
+        for sign in [
+            [1i8, 1, 1],
+            [-1, 1, -1],
+            [1, -1, 1],
+            [-1, -1, -1],
+            [0, 1, -1],
+        ] {
+            for cap in [1u8, 3, 16] {
+                let got = super::occupancy::chessboard_toward(&kind, true, dims, cap, sign);
+                for (i, &d) in got.iter().enumerate() {
+                    let c = at(i);
+                    // Seeds ahead of `c` along every signed axis only.
+                    let want = (0..n)
+                        .filter(|&j| kind[j])
+                        .filter(|&j| {
+                            let o = at(j);
+                            (0..3).all(|a| match sign[a] {
+                                1 => o[a] >= c[a],
+                                -1 => o[a] <= c[a],
+                                _ => true,
+                            })
+                        })
+                        .map(|j| {
+                            let o = at(j);
+                            (0..3).map(|a| c[a].abs_diff(o[a])).max().unwrap()
+                        })
+                        .min()
+                        .map_or(cap, |d| d.min(usize::from(cap)) as u8);
+                    assert_eq!(d, want, "{dims:?} {sign:?} cap {cap} cell {c:?}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn occupancy_is_reused_while_the_opaque_bins_stay_and_rebuilt_when_they_change() {
     let head = Phantom::SheppLogan.generate(24);
     let ranges = CellRanges::new(&head);

@@ -142,6 +142,7 @@ impl Synthetic {
         let tab = PacketTables {
             leap: &self.leap,
             cells: [cells; 3],
+            sign: [0; 3],
         };
         let p = MarchParams {
             cls: ClassifierView {

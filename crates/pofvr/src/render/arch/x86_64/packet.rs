@@ -61,6 +61,9 @@ pub(crate) struct Packet<const N: usize = LANES> {
 pub(crate) struct PacketTables<'t> {
     pub(crate) leap: &'t [u8],
     pub(crate) cells: [i32; 3],
+    /// The octant `leap` looks toward ([`crate::render::occupancy::Occupancy::leaps_toward`]),
+    /// or 0 per axis where its cubes reach both ways ([`crate::render::occupancy::Occupancy::leaps`]).
+    pub(crate) sign: [i8; 3],
 }
 
 /// What a packet took: lane samples marched, lane samples leapt over, and the loop's
@@ -219,7 +222,13 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
             _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(_mm256_cvttps_epi32(c))
         })
     };
+    let reach = |neg: bool| {
+        tab.sign
+            .map(|s| _mm256_set1_epi32(if s == 0 || (s < 0) == neg { -1 } else { 0 }))
+    };
     let leap_ray = LeapRay {
+        back: reach(true),
+        ahead: reach(false),
         o,
         d,
         inv,
@@ -966,6 +975,10 @@ fn vec8(v: [f32; LANES]) -> __m256 {
 
 /// A packet's rays as [`leap_end`] reads them.
 struct LeapRay {
+    /// Per axis, all ones where the table's boxes reach back (down) from the cell, and
+    /// ahead (up).
+    back: [__m256i; 3],
+    ahead: [__m256i; 3],
     o: [__m256; 3],
     d: [__m256; 3],
     inv: [__m256; 3],
@@ -999,8 +1012,12 @@ fn leap_end(
     let mut hi = [zero_i; 3];
     let mut te = _mm256_set1_ps(f32::INFINITY);
     for a in 0..3 {
-        lo[a] = _mm256_max_epi32(_mm256_sub_epi32(c[a], rad), zero_i);
-        hi[a] = _mm256_min_epi32(_mm256_add_epi32(c[a], rad), r.nlast[a]);
+        let (down, up) = (
+            _mm256_and_si256(rad, r.back[a]),
+            _mm256_and_si256(rad, r.ahead[a]),
+        );
+        lo[a] = _mm256_max_epi32(_mm256_sub_epi32(c[a], down), zero_i);
+        hi[a] = _mm256_min_epi32(_mm256_add_epi32(c[a], up), r.nlast[a]);
         let pos = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(r.d[a], zero));
         let neg = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(r.d[a], zero));
         let up = _mm256_and_si256(pos, _mm256_cmpgt_epi32(r.nlast[a], hi[a]));

@@ -235,6 +235,8 @@ pub(crate) unsafe fn march16<T: Gather16, const SHADE: bool>(
     let last = tri.last_cell.map(|c| _mm512_set1_ps(c as f32));
     let [_, s1, s2] = tri.stride;
     let strides = [1, s1 as i32, s2 as i32].map(|s| _mm512_set1_epi32(s));
+    // This loop's leaps reach both ways (the octant tables are the eight-lane loop's).
+    debug_assert_eq!(tab.sign, [0; 3]);
     let nlast = tab.cells.map(|n| _mm512_set1_epi32(n - 1));
     let (n0, n01) = (
         _mm512_set1_epi32(tab.cells[0]),
