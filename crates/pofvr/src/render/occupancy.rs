@@ -317,7 +317,13 @@ impl Occupancy {
 /// `cells`: [`OCCUPIED`] for an occupied cell, else its chessboard distance to the
 /// nearest occupied one, capped; then [`LEAP_PAD`] zero bytes.
 pub(crate) fn leap_table(cell: &[bool], cells: [usize; 3]) -> Vec<u8> {
-    let to_occupied = chessboard(cell, true, cells, EMPTY_CAP);
+    leaps_of(cell, cells, EMPTY_CAP, [0; 3])
+}
+
+/// [`leap_table`] with distances to occupied cells toward `sign` ([`chessboard_toward`]),
+/// capped at `cap`.
+fn leaps_of(cell: &[bool], cells: [usize; 3], cap: u8, sign: [i8; 3]) -> Vec<u8> {
+    let to_occupied = chessboard_toward(cell, true, cells, cap, sign);
     let mut leap: Vec<u8> = cell
         .par_iter()
         .zip(&to_occupied)
@@ -330,14 +336,7 @@ pub(crate) fn leap_table(cell: &[bool], cells: [usize; 3]) -> Vec<u8> {
 /// [`leap_table`] toward `sign` (each ±1): an empty cell's entry is the distance to the
 /// nearest occupied cell ahead of it ([`chessboard_toward`]), capped at [`AHEAD_CAP`].
 pub(crate) fn leap_table_toward(cell: &[bool], cells: [usize; 3], sign: [i8; 3]) -> Vec<u8> {
-    let to_occupied = chessboard_toward(cell, true, cells, AHEAD_CAP, sign);
-    let mut leap: Vec<u8> = cell
-        .par_iter()
-        .zip(&to_occupied)
-        .map(|(&occ, &e)| if occ { OCCUPIED } else { e })
-        .collect();
-    leap.resize(leap.len() + LEAP_PAD, 0);
-    leap
+    leaps_of(cell, cells, AHEAD_CAP, sign)
 }
 
 /// Per cell of a grid of `dims`, the chessboard distance to the nearest cell whose `kind`
@@ -348,6 +347,7 @@ pub(crate) fn leap_table_toward(cell: &[bool], cells: [usize; 3], sign: [i8; 3])
 /// indicator (0 or `cap`), then the same along y of that, then along z. Capped, the window
 /// is `|j| < cap`; each pass is `2·(cap − 1)` runs of byte minima and maxima over shifted
 /// rows or slices, which the compiler vectorises.
+#[cfg(test)]
 pub(super) fn chessboard(kind: &[bool], seed: bool, dims: [usize; 3], cap: u8) -> Vec<u8> {
     chessboard_toward(kind, seed, dims, cap, [0; 3])
 }
