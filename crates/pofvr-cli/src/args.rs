@@ -178,7 +178,9 @@ pub(crate) struct RenderArgs {
     /// --cull), each brick it renders read on demand (raw, NRRD and MetaImage raw data:
     /// positioned reads of the file) into an LRU cache within the budget, and the bricks'
     /// value ranges measured by streaming the file once. --stats adds bytes_read,
-    /// bricks_read, cache_hits, cache_peak_bytes and peak_rss_bytes. The image is the same.
+    /// bricks_read, cache_hits, cache_peak_bytes and peak_rss_bytes. A volume that fits
+    /// gets the march engine's blocked copy (1.2 × its voxels) only where both fit
+    /// together. The image is the same.
     /// > default: none (the whole volume is mapped)
     #[arg(long, value_name = "SIZE")]
     pub(crate) memory_budget: Option<String>,

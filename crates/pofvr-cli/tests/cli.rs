@@ -774,6 +774,22 @@ fn the_engine_is_march_by_default_for_one_process_and_equals_whole() {
         assert_eq!(gs["march_gather"], on == "on" && steps > 0, "{gs}");
         assert_eq!(g, march, "POFVR_GATHER={on} changes no pixel");
     }
+    // The blocked copy: off by itself for 64 KB of voxels; forced on, copied on the first
+    // frame (timed) and read by the eight-ray packets where they run; never another
+    // engine's; the image is the same either way.
+    assert_eq!(w["march_blocks"], false, "{w}");
+    assert_eq!(w["blocks_ms"], 0.0, "{w}");
+    if std::env::var_os("POFVR_BLOCKS").is_none() {
+        assert_eq!(s["march_blocks"], false, "{s}");
+        assert_eq!(s["blocks_ms"], 0.0, "{s}");
+    }
+    for on in ["on", "off"] {
+        let (g, gs) = run_env("POFVR_BLOCKS", on);
+        let eights = gs["march_simd"] == "avx2";
+        assert_eq!(gs["march_blocks"], on == "on" && eights, "{gs}");
+        assert_eq!(gs["blocks_ms"].as_f64().unwrap() > 0.0, on == "on", "{gs}");
+        assert_eq!(g, march, "POFVR_BLOCKS={on} changes no pixel");
+    }
     let (_, b) = run(&["--engine", "bricks"], "bricks");
     assert_eq!(b["engine"], "bricks", "{b}");
     let (_, c) = run(&["--cull", "exact"], "culled");

@@ -4,6 +4,7 @@
 //! [`crate::Scene`] facade keeps the scene alone and passes those per frame. Both render
 //! through the same functions here, which take the weights and shading as a `Look`.
 
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
@@ -21,8 +22,8 @@ use crate::distribute::{BrickAssignment, Curve, Deal, DistributeError};
 use crate::error::{OutOfRange, Setting, Value};
 use crate::pof::{PofError, PofTable};
 use crate::render::{
-    Camera, CellRanges, Image, IndexRay, PixelRect, RayCaster, RayStats, RenderSettings, SampledTf,
-    TfError, TransferFunction,
+    Camera, CellRanges, Image, IndexRay, MarchBlocks, PixelRect, RayCaster, RayStats,
+    RenderSettings, SampledTf, TfError, TransferFunction,
 };
 use crate::volume::Volume;
 
@@ -462,6 +463,14 @@ pub struct FrameStats {
     /// `POFVR_GATHER=on|off` overrides it); false for the other engines and loops. The
     /// image is the same either way.
     pub march_gather: bool,
+    /// Whether the march engine's eight-ray packet loop read the voxels from the volume's
+    /// blocked copy ([`crate::render::MarchBlocks`]: by default for volumes of 256 MiB and
+    /// more where memory allows; `POFVR_BLOCKS=on|off` overrides it); false for the other
+    /// engines and loops. The image is the same either way.
+    pub march_blocks: bool,
+    /// The time this frame spent copying the volume into blocks, in milliseconds, inside
+    /// `frame_ms`: the first march frame of a volume that gets them; 0 for the others.
+    pub blocks_ms: f64,
     /// Whether the culling was verified (and repaired) while compositing.
     pub verified: bool,
     /// The predictor of a verified frame (`None` otherwise).
@@ -730,24 +739,43 @@ pub(crate) fn reference_with(
 
 /// Renders the whole volume with the march engine, the reference's image bit for bit:
 /// the occupancy of `cells` is rebuilt for `look`'s weights when they changed (timed
-/// inside the frame).
+/// inside the frame), and the volume copied into `blocks` on the first frame where
+/// `policy` (`None`: [`crate::render::blocks::pays`]) asks for them.
 pub(crate) fn march_with(
     job: &RenderJob,
     look: Look<'_>,
     cells: &CellRanges,
+    (blocks, policy): (&OnceLock<Option<std::sync::Arc<MarchBlocks>>>, Option<bool>),
     camera: &Camera,
 ) -> (Image, FrameStats) {
     let start = Instant::now();
+    // Built on the first frame that needs them, and kept: they depend on the volume only.
+    let mut blocks_ms = 0.0;
+    let blocks = blocks
+        .get_or_init(|| {
+            let t = Instant::now();
+            let want = policy.unwrap_or_else(|| crate::render::blocks::pays(&job.volume));
+            let b = (want && job.store.is_none())
+                .then(|| MarchBlocks::new(&job.volume))
+                .flatten()
+                .map(std::sync::Arc::new);
+            if b.is_some() {
+                blocks_ms = t.elapsed().as_secs_f64() * 1e3;
+            }
+            b
+        })
+        .as_deref();
+    let t = Instant::now();
     let cls = job.sampled.classify(look.weights, job.settings.step);
     let occ = cells.occupancy(&cls);
-    let occupancy_ms = start.elapsed().as_secs_f64() * 1e3;
+    let occupancy_ms = t.elapsed().as_secs_f64() * 1e3;
     let settings = RenderSettings {
         shade: look.shade,
         ..job.settings
     };
     let t = Instant::now();
     let caster = RayCaster::new(&job.volume, &cls, settings);
-    let (image, st) = caster.render_march(camera, &occ);
+    let (image, st) = caster.render_march_with(camera, &occ, blocks);
     let raycast_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut stats = FrameStats::from_rays(st.rays, start.elapsed().as_secs_f64(), "march");
     stats.skipped_samples = st.skipped_samples;
@@ -756,6 +784,8 @@ pub(crate) fn march_with(
     stats.march_simd = Some(st.simd);
     stats.march_prefetch = caster.prefetch() && st.packet_steps > 0;
     stats.march_gather = caster.gather() && matches!(st.simd, "avx512" | "avx2");
+    stats.march_blocks = st.blocks;
+    stats.blocks_ms = blocks_ms;
     // No brick is culled, and none is projected: every non-empty one counts as visible.
     let empty = job
         .grid

@@ -12,7 +12,15 @@ use pofvr::{Engine, FrameRequest, Scene};
 fn march_equals_the_reference_on_every_real_volume() {
     for (vol, tf, volume, family) in common::open_catalogue() {
         let bases = family.bases.len();
-        let scene = Scene::builder(volume, family).build().unwrap();
+        // The eight-ray packets over the volume's blocked copy too (these volumes are
+        // below the size that gets one by default).
+        let scenes = [None, Some(true)].map(|blocks| {
+            Scene::builder(volume.share(), family.clone())
+                .march_blocks(blocks)
+                .build()
+                .unwrap()
+        });
+        let scene = &scenes[0];
         // The family's own weights, and the first basis alone (more of the volume empty).
         let alone: Vec<f32> = (0..bases).map(|i| f32::from(i == 0)).collect();
         let weight_sets = [scene.default_weights().to_vec(), alone];
@@ -31,25 +39,31 @@ fn march_equals_the_reference_on_every_real_volume() {
                     .weights(weights)
                     .shade(shade)
                     .engine(Engine::March);
-                let march = scene.render(&req).unwrap();
                 let whole = scene.render_reference(&req).unwrap();
-                let what =
-                    format!("{vol} {tf} {weights:?} view {az},{el} {projection:?} shade {shade}");
-                for (i, (m, w)) in march
-                    .image
-                    .pixels()
-                    .iter()
-                    .zip(whole.image.pixels())
-                    .enumerate()
-                {
-                    assert_eq!(
-                        m.map(f32::to_bits),
-                        w.map(f32::to_bits),
-                        "{what}: pixel {i}"
+                for (blocks, scene) in [false, true].into_iter().zip(&scenes) {
+                    let march = scene.render(&req).unwrap();
+                    let what = format!(
+                        "{vol} {tf} {weights:?} view {az},{el} {projection:?} shade {shade} blocks {blocks}"
                     );
+                    for (i, (m, w)) in march
+                        .image
+                        .pixels()
+                        .iter()
+                        .zip(whole.image.pixels())
+                        .enumerate()
+                    {
+                        assert_eq!(
+                            m.map(f32::to_bits),
+                            w.map(f32::to_bits),
+                            "{what}: pixel {i}"
+                        );
+                    }
+                    assert_eq!(march.stats.rays, whole.stats.rays, "{what}");
+                    assert!(march.stats.samples <= whole.stats.samples, "{what}");
+                    // The copy serves the eight-ray packets, where they run.
+                    let eights = march.stats.march_simd == Some("avx2");
+                    assert_eq!(march.stats.march_blocks, blocks && eights, "{what}");
                 }
-                assert_eq!(march.stats.rays, whole.stats.rays, "{what}");
-                assert!(march.stats.samples <= whole.stats.samples, "{what}");
             }
         }
     }

@@ -27,6 +27,7 @@
 use rayon::prelude::*;
 
 use super::arch::{self, Gather};
+use super::blocks::MarchBlocks;
 use super::camera::Camera;
 use super::frame_rays::FrameRays;
 use super::image::Image;
@@ -71,6 +72,9 @@ pub struct MarchStats {
     /// or, where no packet loop runs, the walk around the one-ray loop
     /// ([`RayCaster::simd`]): "walk-avx2", "sse2" or "scalar". Empty before a frame.
     pub simd: &'static str,
+    /// Whether the packet loop read the voxels from the volume's blocked copy
+    /// ([`MarchBlocks`]).
+    pub blocks: bool,
 }
 
 impl std::ops::AddAssign for MarchStats {
@@ -81,6 +85,7 @@ impl std::ops::AddAssign for MarchStats {
         if self.simd.is_empty() {
             self.simd = o.simd;
         }
+        self.blocks |= o.blocks;
     }
 }
 
@@ -90,6 +95,22 @@ impl RayCaster<'_> {
     /// built for this volume and this caster's classification.
     #[must_use]
     pub fn render_march(&self, camera: &Camera, occ: &Occupancy) -> (Image, MarchStats) {
+        self.render_march_with(camera, occ, None)
+    }
+
+    /// [`Self::render_march`], the eight-ray packet loop reading the voxels from `blocks`,
+    /// this volume's blocked copy ([`MarchBlocks`]), where given: the same image, from
+    /// other addresses (faster on volumes far larger than the caches).
+    ///
+    /// # Panics
+    /// Where `blocks` was not built from this caster's volume (its block counts differ).
+    #[must_use]
+    pub fn render_march_with(
+        &self,
+        camera: &Camera,
+        occ: &Occupancy,
+        blocks: Option<&MarchBlocks>,
+    ) -> (Image, MarchStats) {
         let w = camera.width as usize;
         let mut image = Image::new(camera.width, camera.height);
         let frame = camera.frame();
@@ -104,7 +125,16 @@ impl RayCaster<'_> {
         );
         let mut stats = with_voxels!(self.volume().data(), v => {
             let tri = TrilinearSampler::new(v, self.volume().dims());
-            if let Some(st) = self.render_packets(&tri, &rays, occ, w, image.pixels_mut()) {
+            let copy = blocks.map(|b| {
+                assert_eq!(
+                    b.blocks(),
+                    self.volume().dims().map(|d| d.saturating_sub(2) / super::blocks::EDGE + 1),
+                    "the blocked copy of another volume"
+                );
+                b.voxels().expect("a blocked copy of this volume's voxel type")
+            });
+            let blocked = copy.map(|c| TrilinearSampler::blocked(c, &tri));
+            if let Some(st) = self.render_packets(&tri, blocked.as_ref(), &rays, occ, w, image.pixels_mut()) {
                 MarchStats { simd: self.packet_simd(), ..st }
             } else {
             image
@@ -155,6 +185,7 @@ impl RayCaster<'_> {
     fn render_packets<T: Gather>(
         &self,
         tri: &TrilinearSampler<'_, T>,
+        blocked: Option<&TrilinearSampler<'_, T>>,
         rays: &FrameRays,
         occ: &Occupancy,
         w: usize,
@@ -171,8 +202,12 @@ impl RayCaster<'_> {
                 arch::march_packet16(&p, tri, tab, pk)
             })
         } else {
-            self.packet_frame::<LANES, 4>(rays, occ, w, pixels, &|tab, pk| {
-                arch::march_packet(&p, tri, tab, pk)
+            let st = self.packet_frame::<LANES, 4>(rays, occ, w, pixels, &|tab, pk| {
+                arch::march_packet(&p, tri, blocked, tab, pk)
+            });
+            st.map(|st| MarchStats {
+                blocks: blocked.is_some_and(|b| arch::x86_64::avx2::fits(b)),
+                ..st
             })
         }
     }
@@ -284,6 +319,7 @@ impl RayCaster<'_> {
     fn render_packets<T: Gather>(
         &self,
         _: &TrilinearSampler<'_, T>,
+        _: Option<&TrilinearSampler<'_, T>>,
         _: &FrameRays,
         _: &Occupancy,
         _: usize,

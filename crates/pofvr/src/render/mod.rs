@@ -8,10 +8,13 @@
 //! - `occupancy`, `skip` and `march`: the cells that can hold opacity for a
 //!   classification, the exact leaps over the others, and the whole-volume render that
 //!   skips them ([`RayCaster::render_march`]).
+//! - `blocks`: a copy of the volume in blocks, for the march engine on volumes far
+//!   larger than the caches.
 //! - `arch`: the sample loops, `arch/generic.rs` the scalar reference (and shading),
 //!   `arch/x86_64/{sse2,avx2}.rs` the vector loops that equal it bit for bit.
 
 mod arch;
+pub mod blocks;
 pub mod camera;
 pub mod families;
 mod frame_rays;
@@ -29,6 +32,7 @@ mod test;
 mod test_march;
 pub mod transfer_function;
 
+pub use blocks::MarchBlocks;
 pub use camera::{Camera, PixelRect, Projection, Ray, ViewFrame};
 pub use image::Image;
 pub use march::MarchStats;

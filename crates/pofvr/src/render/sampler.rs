@@ -36,6 +36,24 @@ impl<'v, T: Voxel> TrilinearSampler<'v, T> {
     }
 }
 
+impl<'v, T: Voxel> TrilinearSampler<'v, T> {
+    /// `lin`'s volume over its blocked copy `v` ([`super::blocks`]): the same clamp and
+    /// cells; `stride` holds the blocks' element strides per axis, and `step` the corners'
+    /// offsets inside a block. Only the packet loop, which splits a cell index into its
+    /// block and its place in it, may address it.
+    pub(crate) fn blocked(v: &'v [T], lin: &Self) -> Self {
+        use super::blocks::{BLOCK, EDGE, SIDE};
+        let nb = lin.last_cell.map(|c| c / EDGE + 1);
+        debug_assert_eq!(v.len(), nb[0] * nb[1] * nb[2] * BLOCK);
+        TrilinearSampler {
+            v,
+            stride: [BLOCK, nb[0] * BLOCK, nb[0] * nb[1] * BLOCK],
+            step: [1, SIDE, SIDE * SIDE],
+            ..*lin
+        }
+    }
+}
+
 impl<'v, T: Voxel> TrilinearSampler<'v, T, true> {
     /// Over `v`, the `dims` voxels from `origin` of a volume of `volume_dims` voxels.
     pub(crate) fn local(

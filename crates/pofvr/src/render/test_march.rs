@@ -24,20 +24,27 @@ fn compare(
     let (want, ref_st) = caster.render(cam);
     let occ = Occupancy::new(&CellRanges::new(vol), &cls);
     let mut first = None;
+    // The eights' other layout: these volumes are far below the size that gets it by
+    // itself.
+    let copy = MarchBlocks::new(vol).expect("a resident volume");
     // The packets of sixteen on AVX-512 and of eight on AVX2 (where the CPU has them),
     // and the walk around the one-sample loop; the packets with and without prefetching
     // (these volumes are far below the size that turns it on by itself), the sixteen
-    // with loads lane by lane and by gathers.
-    for (avx2, avx512, prefetch, gather) in [
-        (true, true, false, false),
-        (true, true, false, true),
-        (true, true, true, false),
-        (true, true, true, true),
-        (true, false, false, false),
-        (true, false, false, true),
-        (true, false, true, false),
-        (true, false, true, true),
-        (false, false, false, false),
+    // with loads lane by lane and by gathers, the eights over the volume's own layout and
+    // over its blocked copy.
+    for (avx2, avx512, prefetch, gather, blocks) in [
+        (true, true, false, false, false),
+        (true, true, false, true, false),
+        (true, true, true, false, false),
+        (true, true, true, true, false),
+        (true, false, false, false, false),
+        (true, false, false, true, false),
+        (true, false, true, false, false),
+        (true, false, true, true, false),
+        (true, false, false, false, true),
+        (true, false, true, false, true),
+        (true, false, true, true, true),
+        (false, false, false, false, false),
     ] {
         let caster = RayCaster::new(vol, &cls, settings)
             .with_avx2(avx2)
@@ -55,12 +62,13 @@ fn compare(
                 caster.packet_simd()
             );
         }
-        let (got, st) = caster.render_march(cam, &occ);
+        let (got, st) = caster.render_march_with(cam, &occ, blocks.then_some(&copy));
+        assert_eq!(st.blocks, blocks && st.simd == "avx2", "{st:?}");
         for (i, (g, w)) in got.pixels().iter().zip(want.pixels()).enumerate() {
             assert_eq!(
                 g.map(f32::to_bits),
                 w.map(f32::to_bits),
-                "pixel {i} ({}, {}): march ({}, packets {}, prefetch {prefetch}, gather {gather}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
+                "pixel {i} ({}, {}): march ({}, packets {}, prefetch {prefetch}, gather {gather}, blocks {blocks}) {g:?}, reference {w:?} ({weights:?}, {settings:?}, {:?})",
                 i as u32 % cam.width,
                 i as u32 / cam.width,
                 caster.simd(),

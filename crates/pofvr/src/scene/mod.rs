@@ -45,6 +45,11 @@ pub struct Scene {
     /// The value ranges of the volume's 4³ cells, which the march engine's occupancy is
     /// rebuilt from for each frame's weights: measured once, on the first march frame.
     cells: OnceLock<CellRanges>,
+    /// The volume in blocks for the march engine where it pays ([`crate::render::blocks`]):
+    /// decided, and copied, on the first march frame.
+    blocks: OnceLock<Option<std::sync::Arc<crate::render::MarchBlocks>>>,
+    /// [`SceneBuilder::march_blocks`].
+    blocks_policy: Option<bool>,
 }
 
 impl std::fmt::Debug for Scene {
@@ -111,6 +116,8 @@ impl Scene {
             job,
             pofs: None,
             cells: OnceLock::new(),
+            blocks: OnceLock::new(),
+            blocks_policy: None,
         }
     }
 
@@ -390,6 +397,8 @@ impl Scene {
             job,
             pofs: self.pofs.clone().filter(|_| same_bases),
             cells: self.cells.clone(),
+            blocks: self.blocks.clone(),
+            blocks_policy: self.blocks_policy,
         };
         Ok(scene)
     }
@@ -526,7 +535,13 @@ impl Scene {
         if self.engine(req)? == Engine::March {
             frame::check_options(self.bound(), &opts)?;
             let cells = self.cell_ranges();
-            let (image, stats) = frame::march_with(&self.job, look, cells, req.camera);
+            let (image, stats) = frame::march_with(
+                &self.job,
+                look,
+                cells,
+                (&self.blocks, self.blocks_policy),
+                req.camera,
+            );
             return Ok(Frame { image, stats });
         }
         let (image, stats) = frame::frame_with(&self.job, look, self.bound(), req.camera, &opts)?;

@@ -548,3 +548,41 @@ fn stats_count_pixel_rays_and_brick_fragment_rays_apart() {
         assert!((bricks.samples_per_ray - spr).abs() < 1e-9);
     }
 }
+
+#[test]
+fn march_blocks_follow_the_builder_and_a_memory_budget_and_change_no_pixel() {
+    let (v, tf) = head(48);
+    // 48³ u8: 110 592 bytes of voxels, and a copy of 3 × 3 × 3 blocks of 17³.
+    let copy = crate::render::blocks::copy_bytes(&v);
+    assert_eq!(copy, 27 * 17 * 17 * 17);
+    let frame = |blocks: Option<bool>, budget: Option<u64>| {
+        let s = Scene::builder(v.share(), tf.clone())
+            .march_blocks(blocks)
+            .memory_budget(budget)
+            .build()
+            .unwrap();
+        let cam = camera(&s, 30.0);
+        let first = s.render(&FrameRequest::new(&cam)).unwrap();
+        let second = s.render(&FrameRequest::new(&cam)).unwrap();
+        // Copied once, on the first frame.
+        assert_eq!(second.stats.blocks_ms, 0.0);
+        assert_eq!(first.stats.march_blocks, second.stats.march_blocks);
+        assert_eq!(first.image, second.image);
+        first
+    };
+    let plain = frame(Some(false), None);
+    assert!(!plain.stats.march_blocks && plain.stats.blocks_ms == 0.0);
+    let eights = plain.stats.march_simd == Some("avx2");
+    let blocked = frame(Some(true), None);
+    assert_eq!(blocked.stats.march_blocks, eights, "{:?}", blocked.stats);
+    assert!(blocked.stats.blocks_ms > 0.0);
+    assert_eq!(blocked.image, plain.image);
+    // A budget the volume fits beside its copy keeps it; one it fits alone does not.
+    let both = (110_592 + copy) as u64;
+    assert_eq!(frame(Some(true), Some(both)).stats.march_blocks, eights);
+    let alone = frame(Some(true), Some(both - 1));
+    assert!(!alone.stats.march_blocks && alone.stats.blocks_ms == 0.0);
+    assert_eq!(alone.image, plain.image);
+    // By default, not for a volume this small.
+    assert!(!frame(None, None).stats.march_blocks || std::env::var_os("POFVR_BLOCKS").is_some());
+}

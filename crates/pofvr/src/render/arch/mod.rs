@@ -131,19 +131,22 @@ pub(crate) fn packets<T: Gather>(p: &MarchParams<'_>, tri: &TrilinearSampler<'_,
 
 /// Marches the eight rays of `pk` through the whole volume, each as [`march`] would, bit
 /// for bit, leaving out the samples in the empty cells of `tab`'s occupancy. Only where
-/// [`packets`] holds (it returns `None`, having done nothing, elsewhere).
+/// [`packets`] holds (it returns `None`, having done nothing, elsewhere). `blocked`, the
+/// same volume over its blocked copy ([`TrilinearSampler::blocked`]), is read instead of
+/// `tri` where given; the pixels are the same.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn march_packet<T: Gather>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
+    blocked: Option<&TrilinearSampler<'_, T>>,
     tab: &x86_64::packet::PacketTables<'_>,
     pk: &mut x86_64::packet::Packet,
 ) -> Option<x86_64::packet::PacketStats> {
     if p.scalar {
         return None;
     }
-    x86_64::march_packet(p, tri, tab, pk)
+    x86_64::march_packet(p, tri, blocked, tab, pk)
 }
 
 /// [`march_packet`] for packets of sixteen rays, on AVX-512: only where [`packets`] holds

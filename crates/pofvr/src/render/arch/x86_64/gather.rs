@@ -181,7 +181,7 @@ impl Synthetic {
                 let mut pk = pk.clone();
                 // SAFETY: as above; these rays are oblique (as `packet16::oblique` tells).
                 add(std::hint::black_box(unsafe {
-                    march8::<i16, false, true>(&p, &tri, &tab, &mut pk)
+                    march8::<i16, false, true, false>(&p, &tri, &tab, &mut pk)
                 }));
                 px.extend_from_slice(&pk.acc);
             }

@@ -139,7 +139,12 @@ fn hmin(v: __m256i) -> i32 {
 // POPCNT: the counts of lanes sampled and skipped, at every step (without it they compile
 // to a dozen instructions each).
 #[target_feature(enable = "avx2,popcnt")]
-pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
+pub(crate) unsafe fn march8<
+    T: Gather8,
+    const SHADE: bool,
+    const OBLIQUE: bool,
+    const BLOCKS: bool,
+>(
     p: &MarchParams<'_>,
     tri: &TrilinearSampler<'_, T>,
     tab: &PacketTables<'_>,
@@ -186,8 +191,26 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
     let maxv = tri.max.map(|m| _mm256_set1_ps(m));
     // Cells are below 2^24 per axis, so the floats are exact.
     let last = tri.last_cell.map(|c| _mm256_set1_ps(c as f32));
-    let [_, s1, s2] = tri.stride;
-    let strides = [1, s1 as i32, s2 as i32].map(|s| _mm256_set1_epi32(s));
+    let strides = tri.stride.map(|s| _mm256_set1_epi32(s as i32));
+    // Over a blocked copy (`BLOCKS`, `TrilinearSampler::blocked`): `stride` per axis is a
+    // block's, `step` a voxel's inside one.
+    let inner = tri.step.map(|s| _mm256_set1_epi32(s as i32));
+    let edge_mask = _mm256_set1_epi32(crate::render::blocks::EDGE as i32 - 1);
+    // The element offset of cell `i` on axis `a` (its share of the corners' base).
+    let axis_offset = |i: __m256i, a: usize| {
+        if BLOCKS {
+            let b = _mm256_srli_epi32::<{ crate::render::blocks::EDGE_SHIFT as i32 }>(i);
+            let l = _mm256_and_si256(i, edge_mask);
+            let l = if a == 0 {
+                l
+            } else {
+                _mm256_mullo_epi32(l, inner[a])
+            };
+            _mm256_add_epi32(_mm256_mullo_epi32(b, strides[a]), l)
+        } else {
+            _mm256_mullo_epi32(i, strides[a])
+        }
+    };
     let nlast = tab.cells.map(|n| _mm256_set1_epi32(n - 1));
     let (n0, n01) = (
         _mm256_set1_epi32(tab.cells[0]),
@@ -268,7 +291,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         for a in 0..3 {
             let (_, i, fa) = on_axis(t, o[a], d[a], maxv[a], last[a]);
             f[a] = fa;
-            base = _mm256_add_epi32(base, _mm256_mullo_epi32(i, strides[a]));
+            base = _mm256_add_epi32(base, axis_offset(i, a));
             cell[a] = _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i);
         }
         let idx = _mm256_add_epi32(
@@ -602,7 +625,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                 let (_, i_m, _) = on_axis(t0, o[m], d[m], maxv[m], last[m]);
                 Fixed {
                     m,
-                    base: _mm256_sub_epi32(base, _mm256_mullo_epi32(i_m, strides[m])),
+                    base: _mm256_sub_epi32(base, axis_offset(i_m, m)),
                     idx: _mm256_sub_epi32(idx, _mm256_mullo_epi32(cell[m], cm)),
                     f,
                     cell,
@@ -610,7 +633,6 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
                     d: d[m],
                     max: maxv[m],
                     last: last[m],
-                    stride: strides[m],
                     cm,
                 }
             })
@@ -619,7 +641,7 @@ pub(crate) unsafe fn march8<T: Gather8, const SHADE: bool, const OBLIQUE: bool>(
         let locate_along = |t: __m256, fx: &Fixed| {
             let (_, i, fm) = on_axis(t, fx.o, fx.d, fx.max, fx.last);
             let c = _mm256_srli_epi32::<{ CELL_SHIFT as i32 }>(i);
-            let base = _mm256_add_epi32(fx.base, _mm256_mullo_epi32(i, fx.stride));
+            let base = _mm256_add_epi32(fx.base, axis_offset(i, fx.m));
             let idx = _mm256_add_epi32(fx.idx, _mm256_mullo_epi32(c, fx.cm));
             let (mut f, mut cell) = (fx.f, fx.cell);
             match fx.m {
@@ -802,7 +824,6 @@ struct Fixed {
     d: __m256,
     max: __m256,
     last: __m256,
-    stride: __m256i,
     cm: __m256i,
 }
 
