@@ -53,7 +53,7 @@ impl std::fmt::Debug for MarchBlocks {
 
 /// Blocks per axis for a volume of `dims` voxels: enough for its cells (one fewer than
 /// its voxels, at least one).
-fn blocks_of(dims: [usize; 3]) -> [usize; 3] {
+pub(crate) fn blocks_of(dims: [usize; 3]) -> [usize; 3] {
     dims.map(|d| d.saturating_sub(2) / EDGE + 1)
 }
 
@@ -64,13 +64,18 @@ fn blocks_of(dims: [usize; 3]) -> [usize; 3] {
 #[must_use]
 pub fn pays(volume: &Volume) -> bool {
     let possible = volume.is_resident() && copy_len(volume.dims()) < i32::MAX as usize;
-    let bytes = volume.dims().iter().product::<usize>() * volume.data_type().size();
+    let bytes = voxel_bytes(volume);
     let copy = copy_bytes(volume);
     match std::env::var("POFVR_BLOCKS").as_deref() {
         Ok(s) if s.eq_ignore_ascii_case("on") => possible,
         Ok(s) if s.eq_ignore_ascii_case("off") => false,
         _ => possible && bytes >= MIN_BYTES && available_memory().is_none_or(|m| copy <= m / 2),
     }
+}
+
+/// The bytes of `volume`'s voxels.
+pub(crate) fn voxel_bytes(volume: &Volume) -> usize {
+    volume.dims().iter().product::<usize>() * volume.data_type().size()
 }
 
 /// The bytes a blocked copy of `volume` takes.

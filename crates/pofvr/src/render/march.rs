@@ -128,7 +128,7 @@ impl RayCaster<'_> {
             let copy = blocks.map(|b| {
                 assert_eq!(
                     b.blocks(),
-                    self.volume().dims().map(|d| d.saturating_sub(2) / super::blocks::EDGE + 1),
+                    super::blocks::blocks_of(self.volume().dims()),
                     "the blocked copy of another volume"
                 );
                 b.voxels().expect("a blocked copy of this volume's voxel type")

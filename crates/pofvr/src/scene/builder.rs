@@ -104,8 +104,7 @@ impl SceneBuilder {
         };
         let store = crate::store::cache_for(&self.volume, self.memory_budget)?;
         // A budget the volume fits but not beside its copy rules the copy out.
-        let volume_bytes =
-            self.volume.dims().iter().product::<usize>() * self.volume.data_type().size();
+        let volume_bytes = crate::render::blocks::voxel_bytes(&self.volume);
         let over = self.memory_budget.is_some_and(|b| {
             (volume_bytes as u64)
                 .saturating_add(crate::render::blocks::copy_bytes(&self.volume) as u64)
